@@ -1,0 +1,3 @@
+from radarcal.cli.main import _entry
+
+_entry()

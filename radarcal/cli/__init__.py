@@ -1,0 +1,1 @@
+"""Thin typer front end: one module per command group; parse -> call -> print."""

@@ -1,0 +1,113 @@
+"""``radarcal bundle``: show, validate, import, export, set-transform."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from radarcal import geometry
+from radarcal.bundle import Provenance, hash_inputs, load_bundle, load_or_create_bundle, save_bundle
+from radarcal.cli.common import JsonOpt, command_line, emit
+from radarcal.errors import InputError
+from radarcal.io import export_camera, import_camera, read_transform
+from radarcal.io.camera_formats import EXPORT_FORMATS
+
+app = typer.Typer(help="Inspect and edit the calibration bundle.", no_args_is_help=True)
+
+
+def _summary(b) -> dict:
+    cams = {
+        n: {"model": e.camera.model, "image_size": list(e.camera.image_size), "K": e.camera.K, "dist": e.camera.dist, "rms_px": e.rms_px, "sigma": e.sigma, "provenance": e.provenance.to_dict()}
+        for n, e in b.cameras.items()
+    }
+    tfs = {}
+    for n, e in b.transforms.items():
+        xyz_rpy = geometry.T_to_xyz_rpy_deg(e.T)
+        tfs[n] = {"target": e.target, "source": e.source, "T": e.T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "method": e.method, "residual": e.residual, "sigma": e.sigma}
+    return {"path": str(b.path), "cameras": cams, "sensors": b.sensors, "transforms": tfs, "field": (b.field_model or {}).get("name"), "runtime": b.runtime, "sessions": b.sessions}
+
+
+@app.command()
+def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool = JsonOpt) -> None:
+    """Print what the bundle holds."""
+    b = load_bundle(bundle)
+
+    def human(s: dict) -> None:
+        typer.echo(f"bundle {s['path']}")
+        for n, c in s["cameras"].items():
+            K = c["K"]
+            rms = "-" if c["rms_px"] is None else f"{c['rms_px']:.3f} px"
+            typer.echo(f"  camera {n}: {c['model']} {c['image_size'][0]}x{c['image_size'][1]}  fx={K[0][0]:.2f} fy={K[1][1]:.2f} cx={K[0][2]:.2f} cy={K[1][2]:.2f}  dist={np.array2string(np.asarray(c['dist']), precision=5)}  rms={rms}")
+        for n, t in s["transforms"].items():
+            x, y, z = t["xyz_m"]
+            r, p, yw = t["rpy_deg"]
+            typer.echo(f"  {n}: xyz=({x:.4f}, {y:.4f}, {z:.4f}) m  rpy=({r:.3f}, {p:.3f}, {yw:.3f}) deg  [{t['method'] or '-'}]")
+        for n, meta in s["sensors"].items():
+            if meta.get("type") != "camera":
+                typer.echo(f"  sensor {n}: {meta}")
+        if s["field"]:
+            typer.echo(f"  field: {s['field']}")
+        typer.echo(f"  runtime: {s['runtime']}")
+
+    emit(_summary(b), as_json, human)
+
+
+@app.command()
+def validate(bundle: Path = typer.Argument(..., help="Bundle file.")) -> None:
+    """Load and check the bundle; exit 0 when valid, 2 with the offending field otherwise."""
+    b = load_bundle(bundle)
+    typer.echo(f"ok: {bundle}: {len(b.cameras)} camera(s), {len(b.transforms)} transform(s)")
+
+
+@app.command("import")
+def import_(
+    bundle: Path = typer.Argument(..., help="Bundle file (created if missing)."),
+    file: Path = typer.Argument(..., help="ROS camera_info YAML, OpenCV YAML, Kalibr camchain or radarcal JSON."),
+    camera: str = typer.Option(..., "--camera", help="Name of the camera in the bundle, e.g. cam0."),
+    select: str = typer.Option(None, "--select", help="Camera inside a multi-camera file (Kalibr cam1; OpenCV stereo 'right')."),
+    as_json: bool = JsonOpt,
+) -> None:
+    """Import camera intrinsics from another tool's file."""
+    cam, fmt = import_camera(file, select)
+    b = load_or_create_bundle(bundle)
+    b.set_camera(camera, cam, provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs([file])), extra={"imported_from": fmt})
+    save_bundle(b, bundle)
+    emit({"camera": camera, "format": fmt, "K": cam.K, "dist": cam.dist, "image_size": list(cam.image_size), "model": cam.model}, as_json,
+         lambda s: typer.echo(f"imported {camera} from {file} ({fmt}): {cam.model} {cam.width}x{cam.height} fx={cam.fx:.3f} fy={cam.fy:.3f} cx={cam.cx:.3f} cy={cam.cy:.3f} -> {bundle}"))
+
+
+@app.command()
+def export(
+    bundle: Path = typer.Argument(..., help="Bundle file."),
+    camera: str = typer.Option(..., "--camera"),
+    fmt: str = typer.Option("ros", "--format", help=f"One of: {', '.join(EXPORT_FORMATS)}."),
+    out: Path = typer.Option(None, "-o", "--output", help="Output file (stdout if omitted)."),
+) -> None:
+    """Export one camera's intrinsics for another tool."""
+    if fmt not in EXPORT_FORMATS:
+        raise InputError("--format", f"unknown format {fmt!r} (choose {', '.join(EXPORT_FORMATS)})")
+    b = load_bundle(bundle)
+    text = export_camera(b.camera(camera), fmt, camera)
+    if out is None:
+        typer.echo(text, nl=False)
+    else:
+        out.write_text(text)
+        typer.echo(f"wrote {out} ({fmt})", err=True)
+
+
+@app.command("set-transform")
+def set_transform(
+    bundle: Path = typer.Argument(..., help="Bundle file (created if missing)."),
+    target: str = typer.Argument(..., help="Target frame a of T_a_b (e.g. cam0)."),
+    source: str = typer.Argument(..., help="Source frame b of T_a_b (e.g. lidar0)."),
+    file: Path = typer.Argument(..., help="4x4 as JSON or text, or 'x y z roll pitch yaw' (m, deg)."),
+) -> None:
+    """Store T_target_source (maps points in SOURCE into TARGET) from a file."""
+    T = read_transform(file)
+    b = load_or_create_bundle(bundle)
+    b.set_transform(target, source, T, method="manual (set-transform)", provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs([file])))
+    save_bundle(b, bundle)
+    xyz_rpy = geometry.T_to_xyz_rpy_deg(T)
+    typer.echo(f"set T_{target}_{source}: xyz=({xyz_rpy[0]:.4f}, {xyz_rpy[1]:.4f}, {xyz_rpy[2]:.4f}) m rpy=({xyz_rpy[3]:.3f}, {xyz_rpy[4]:.3f}, {xyz_rpy[5]:.3f}) deg -> {bundle}")

@@ -1,0 +1,62 @@
+"""Shared CLI plumbing: stderr console for progress/logs, JSON vs human output, option helpers.
+
+Errors: commands raise :class:`radarcal.errors.InputError`; :func:`radarcal.cli.main.main` turns it into
+``error: <file>: <what is wrong>`` on stderr and exit code 2 (``--debug`` shows the traceback).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import typer
+from rich.console import Console
+
+__all__ = ["err_console", "emit", "progress", "BundleOpt", "JsonOpt", "to_jsonable", "command_line"]
+
+# Progress bars and logs go to stderr so that --json output on stdout stays clean.
+err_console = Console(stderr=True)
+
+BundleOpt = typer.Option(..., "--bundle", "-b", help="Calibration bundle (YAML); created if missing.")
+JsonOpt = typer.Option(False, "--json", help="Machine-readable summary on stdout.")
+
+
+def to_jsonable(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return to_jsonable(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def emit(summary: dict, as_json: bool, human: Callable[[dict], None]) -> None:
+    """Print ``summary`` as JSON on stdout, or call ``human(summary)`` for people."""
+    if as_json:
+        sys.stdout.write(json.dumps(to_jsonable(summary), indent=2) + "\n")
+    else:
+        human(summary)
+
+
+def progress(iterable, description: str, total: int | None = None, enabled: bool = True):
+    """A rich progress bar on stderr (silent when stderr is not a terminal or ``enabled`` is False)."""
+    from rich.progress import track
+
+    if not enabled or not err_console.is_terminal:
+        return iterable
+    return track(iterable, description=description, total=total, console=err_console, transient=True)
+
+
+def command_line() -> str:
+    """The command line as typed, for provenance."""
+    return " ".join(["radarcal"] + sys.argv[1:])
