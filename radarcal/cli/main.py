@@ -22,6 +22,10 @@ def _root(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on 
 
 app.add_typer(bundle_cmd.app, name="bundle")
 
+# `radarcal synth <scene>`: ground-truth scene generators (one module per scene registers its command here)
+synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
+app.add_typer(synth_app, name="synth")
+
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI. Bad input -> ``error: <file>: <problem>`` on stderr, exit 2; never a traceback unless --debug."""
