@@ -118,23 +118,107 @@ class Camera:
         yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y + s3 * r2 + s4 * r4
         return np.stack([xd, yd], axis=1)
 
+    def _radial_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """Samples of the radial map on its monotonic branch: pinhole ``r -> r*radial(r)`` (undistorted ->
+        distorted normalised radius), fisheye ``theta -> theta_d``. Stops at the first fold (where the map stops
+        increasing), beyond which a distorted radius has no unique undistorted one."""
+        d = self.dist
+        if self.model == "fisheye":
+            x = np.linspace(0.0, np.pi, 8001)
+            t2 = x * x
+            g = x * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
+            ok_den = np.ones_like(x, dtype=bool)
+        else:
+            x = np.tan(np.linspace(0.0, np.radians(89.8), 8001))  # r = tan(angle off axis), up to ~290
+            k = np.zeros(12)
+            k[: d.size] = d
+            r2 = x * x
+            num = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))
+            den = 1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]))
+            ok_den = den > 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                g = x * num / den
+        bad = ~(ok_den[1:] & (np.diff(g) > 0) & np.isfinite(g[1:]))
+        stop = int(np.argmax(bad)) + 1 if bad.any() else len(x)
+        return x[:stop], g[:stop]
+
+    def _invert_radius(self, rd: np.ndarray) -> np.ndarray:
+        """Undistorted radius (pinhole: normalised r; fisheye: angle theta) for distorted radii ``rd`` on the
+        monotonic branch of the lens model; NaN where ``rd`` lies beyond the fold (no unique inverse)."""
+        x_tab, g_tab = self._radial_table()
+        rd = np.asarray(rd, float)
+        x = np.interp(rd, g_tab, x_tab)
+        x[~(rd <= g_tab[-1])] = np.nan  # beyond the fold (or NaN input)
+        return x
+
     def undistort(self, xyd: np.ndarray, iterations: int = 20) -> np.ndarray:
-        """Inverse of :meth:`distort` by Newton iterations (vectorised, numeric 2x2 Jacobian)."""
-        xyd = np.asarray(xyd, float)
-        xy = xyd.copy()
+        """Inverse of :meth:`distort`: distorted normalised coordinates (N,2) -> undistorted (N,2).
+
+        Starts from the exact inverse of the radial part (tabulated on the lens model's monotonic branch, so
+        strong barrel distortion does not send it onto the wrong branch), then Newton iterations with a
+        numeric 2x2 Jacobian and step halving for the tangential / thin-prism terms. Points that have no
+        inverse (beyond the fold of the distortion polynomial, or a fisheye angle of 90 degrees or more) or
+        that do not converge come back as NaN.
+        """
+        xyd = np.asarray(xyd, float).reshape(-1, 2)
+        rd = np.hypot(xyd[:, 0], xyd[:, 1])
+        x0 = self._invert_radius(rd)
+        if self.model == "fisheye":
+            with np.errstate(invalid="ignore"):
+                x0 = np.where(x0 < np.pi / 2 - 1e-9, np.tan(np.where(x0 < np.pi / 2 - 1e-9, x0, 0.0)), np.nan)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = np.where(rd > 1e-300, x0 / np.where(rd > 1e-300, rd, 1.0), 1.0)
+        xy = xyd * scale[:, None]
         eps = 1e-7
-        for _ in range(iterations):
-            f = self.distort(xy) - xyd
-            if np.nanmax(np.abs(f), initial=0.0) < 1e-14:
+        f = self.distort(xy) - xyd
+        err = np.hypot(f[:, 0], f[:, 1])
+        for _ in range(max(int(iterations), 1)):
+            todo = np.isfinite(err) & (err > 1e-15 * np.maximum(1.0, rd))
+            if not todo.any():
                 break
-            jx = (self.distort(xy + [eps, 0]) - self.distort(xy - [eps, 0])) / (2 * eps)
-            jy = (self.distort(xy + [0, eps]) - self.distort(xy - [0, eps])) / (2 * eps)
+            p, fp = xy[todo], f[todo]
+            jx = (self.distort(p + [eps, 0]) - self.distort(p - [eps, 0])) / (2 * eps)
+            jy = (self.distort(p + [0, eps]) - self.distort(p - [0, eps])) / (2 * eps)
             det = jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
-            det = np.where(np.abs(det) < 1e-12, 1e-12, det)
-            dx = (jy[:, 1] * f[:, 0] - jy[:, 0] * f[:, 1]) / det
-            dy = (-jx[:, 1] * f[:, 0] + jx[:, 0] * f[:, 1]) / det
-            xy = xy - np.stack([dx, dy], axis=1)
+            det = np.where(np.abs(det) < 1e-300, 1e-300, det)
+            step = np.stack([(jy[:, 1] * fp[:, 0] - jy[:, 0] * fp[:, 1]) / det, (-jx[:, 1] * fp[:, 0] + jx[:, 0] * fp[:, 1]) / det], axis=1)
+            e0 = err[todo]
+            lam = np.ones(len(p))
+            for _half in range(8):  # step halving where a full step makes things worse
+                cand = p - step * lam[:, None]
+                fc = self.distort(cand) - xyd[todo]
+                ec = np.hypot(fc[:, 0], fc[:, 1])
+                worse = ~(ec <= e0)
+                if not worse.any():
+                    break
+                lam = np.where(worse, lam * 0.5, lam)
+            xy[todo], f[todo], err[todo] = cand, fc, np.where(worse, e0, ec)
+        bad = ~(err <= 1e-10 * np.maximum(1.0, rd))
+        xy[bad] = np.nan
         return xy
+
+    def unproject(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels (N,2) -> unit rays (N,3) in the camera frame (NaN rows for pixels no ray maps to).
+
+        Fisheye rays may point more than 90 degrees off axis (z <= 0) when the lens sees that far."""
+        uv = np.asarray(uv, float).reshape(-1, 2)
+        Kinv = np.linalg.inv(self.K)
+        xyd = uv @ Kinv[:2, :2].T + Kinv[:2, 2]
+        if self.model == "fisheye":
+            d = self.dist
+            theta_d = np.hypot(xyd[:, 0], xyd[:, 1])
+            theta = self._invert_radius(theta_d)
+            for _ in range(8):  # Newton polish of the tabulated inverse: theta_d = theta (1 + k1 t^2 + ...)
+                t2 = theta * theta
+                g = theta * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))) - theta_d
+                dg = 1 + t2 * (3 * d[0] + t2 * (5 * d[1] + t2 * (7 * d[2] + t2 * 9 * d[3])))
+                theta = theta - g / dg
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = np.where(theta_d > 1e-300, np.sin(theta) / np.where(theta_d > 1e-300, theta_d, 1.0), 1.0)
+            return np.concatenate([xyd * s[:, None], np.cos(theta)[:, None]], axis=1)
+        xy = self.undistort(xyd)
+        rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
     # --- projection ------------------------------------------------------------------------------------------
     def project(self, points_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -158,15 +242,6 @@ class Camera:
         p_cam = np.asarray(points_x, float) @ T[:3, :3].T + T[:3, 3]
         uv, valid = self.project(p_cam)
         return uv, valid, p_cam[:, 2]
-
-    def unproject(self, uv: np.ndarray) -> np.ndarray:
-        """Pixels (N,2) -> unit rays (N,3) in the camera frame."""
-        uv = np.asarray(uv, float).reshape(-1, 2)
-        Kinv = np.linalg.inv(self.K)
-        xyd = uv @ Kinv[:2, :2].T + Kinv[:2, 2]
-        xy = self.undistort(xyd)
-        rays = np.concatenate([xy, np.ones((len(xy), 1))], axis=1)
-        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
 
     def in_image(self, uv: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Mask of pixels inside the image (pixel centres at integers, so the edge is at -0.5 / size-0.5)."""
