@@ -28,6 +28,7 @@ import io as _io
 import os
 import shutil
 import tempfile
+from glob import escape as glob_escape
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,7 +54,10 @@ __all__ = [
     "load_session",
     "hash_inputs",
     "DEFAULT_RUNTIME",
+    "BACKUPS_KEPT",
 ]
+
+BACKUPS_KEPT = 10  # timestamped backups kept next to a bundle; older ones are removed on save
 
 SCHEMA_VERSION = 1
 
@@ -193,7 +197,8 @@ class Bundle:
                         return seen[nxt]
                     queue.append(nxt)
         reach = ", ".join(sorted(set(seen) - {target})) or "nothing"
-        raise InputError(self.path, f"no transform chain from {source!r} to {target!r} ({target!r} connects to: {reach})")
+        stored = ", ".join(sorted(self.transforms)) or "none"
+        raise InputError(self.path, f"no transform chain from {source!r} to {target!r}: {target!r} connects to {reach}; stored transforms: {stored}")
 
     def has_T(self, target: str, source: str) -> bool:
         try:
@@ -265,6 +270,16 @@ def _matrix(value: Any, shape: tuple[int, ...], where: str, path: Any) -> np.nda
     return arr
 
 
+def _vector(value: Any, where: str, path: Any) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float).ravel()
+    except (TypeError, ValueError):
+        raise InputError(path, f"{where}: expected a list of numbers, got {value!r}"[:200]) from None
+    if not np.all(np.isfinite(arr)):
+        raise InputError(path, f"{where}: non-finite value")
+    return arr
+
+
 def _check_T(T: np.ndarray, where: str, path: Any) -> np.ndarray:
     T = _matrix(T, (4, 4), where, path)
     if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
@@ -292,18 +307,21 @@ def bundle_from_dict(data: Any, path: Any = None) -> Bundle:
         where = f"cameras.{name}"
         d = _require_mapping(d, where, path)
         K = _matrix(d.get("K"), (3, 3), f"{where}.K", path)
-        dist = np.asarray(d.get("dist", []), dtype=float).ravel() if d.get("dist") is not None else np.zeros(5)
+        dist = _vector(d.get("dist"), f"{where}.dist", path) if d.get("dist") is not None else np.zeros(5)
         size = d.get("image_size")
-        if not (isinstance(size, (list, tuple)) and len(size) == 2):
-            raise InputError(path, f"{where}.image_size: expected [width, height], got {size!r}")
+        if not (isinstance(size, (list, tuple)) and len(size) == 2 and all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in size)):
+            raise InputError(path, f"{where}.image_size: expected [width, height] (positive integers), got {size!r}")
         try:
             cam = Camera(tuple(size), K, dist, str(d.get("model", "pinhole")))
         except ValueError as e:
             raise InputError(path, f"{where}.{e}") from None
         rms = d.get("rms_px")
-        if rms is not None and not (isinstance(rms, (int, float)) and np.isfinite(rms) and rms >= 0):
+        if rms is not None and not (isinstance(rms, (int, float)) and not isinstance(rms, bool) and np.isfinite(rms) and rms >= 0):
             raise InputError(path, f"{where}.rms_px: expected a non-negative number, got {rms!r}")
-        b.cameras[str(name)] = CameraEntry(cam, rms, dict(d.get("sigma") or {}), Provenance.from_dict(d.get("provenance")), dict(d.get("extra") or {}))
+        sigma = _require_mapping(d.get("sigma"), f"{where}.sigma", path)
+        extra = _require_mapping(d.get("extra"), f"{where}.extra", path)
+        prov = Provenance.from_dict(_require_mapping(d.get("provenance"), f"{where}.provenance", path))
+        b.cameras[str(name)] = CameraEntry(cam, None if rms is None else float(rms), dict(sigma), prov, dict(extra))
     b.sensors = {str(k): dict(_require_mapping(v, f"sensors.{k}", path)) for k, v in _require_mapping(data.get("sensors"), "sensors", path).items()}
     for name, d in _require_mapping(data.get("transforms"), "transforms", path).items():
         where = f"transforms.{name}"
@@ -314,12 +332,15 @@ def bundle_from_dict(data: Any, path: Any = None) -> Bundle:
         if name != f"T_{target}_{source}":
             raise InputError(path, f"{where}: key does not match target/source (expected T_{target}_{source})")
         T = _check_T(d.get("T"), f"{where}.T", path)
-        b.transforms[str(name)] = TransformEntry(str(target), str(source), T, str(d.get("method", "")), dict(d.get("residual") or {}), dict(d.get("sigma") or {}), Provenance.from_dict(d.get("provenance")))
+        residual = _require_mapping(d.get("residual"), f"{where}.residual", path)
+        sigma = _require_mapping(d.get("sigma"), f"{where}.sigma", path)
+        prov = Provenance.from_dict(_require_mapping(d.get("provenance"), f"{where}.provenance", path))
+        b.transforms[str(name)] = TransformEntry(str(target), str(source), T, str(d.get("method") or ""), dict(residual), dict(sigma), prov)
     fm = data.get("field")
     b.field_model = dict(_require_mapping(fm, "field", path)) if fm is not None else None
     b.runtime = {**DEFAULT_RUNTIME, **_require_mapping(data.get("runtime"), "runtime", path)}
     off = b.runtime.get("hero_range_offset_m")
-    if not (isinstance(off, (int, float)) and np.isfinite(off)):
+    if not (isinstance(off, (int, float)) and not isinstance(off, bool) and np.isfinite(off)):
         raise InputError(path, f"runtime.hero_range_offset_m: expected a finite number, got {off!r}")
     b.sessions = {str(k): str(v) for k, v in _require_mapping(data.get("sessions"), "sessions", path).items()}
     return b
@@ -429,7 +450,20 @@ def _atomic_write(path: Path, data: bytes, keep_backup: bool = True) -> Path | N
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+    if backup is not None:
+        _prune_backups(path)
     return backup
+
+
+def _prune_backups(path: Path, keep: int | None = None) -> None:
+    """Remove all but the newest ``keep`` (default :data:`BACKUPS_KEPT`) timestamped backups of ``path``."""
+    keep = BACKUPS_KEPT if keep is None else keep
+    baks = sorted(path.parent.glob(f"{glob_escape(path.name)}.*.bak"))  # the UTC stamp sorts by time
+    for old in baks[: max(len(baks) - keep, 0)]:
+        try:
+            old.unlink()
+        except OSError:
+            pass
 
 
 def save_bundle(bundle: Bundle, path: str | os.PathLike | None = None) -> Path:
@@ -465,11 +499,15 @@ def load_session(bundle: Bundle, key: str) -> tuple[dict[str, np.ndarray], dict]
 
     if key not in bundle.sessions:
         raise InputError(bundle.path, f"no session {key!r} in the bundle (sessions: {', '.join(sorted(bundle.sessions)) or 'none'})")
+    import zipfile
+
     p = (bundle.path.parent if bundle.path else Path(".")) / bundle.sessions[key]
     try:
         with np.load(p, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files if k != "__meta__"}
             meta = json.loads(str(z["__meta__"])) if "__meta__" in z.files else {}
-    except (OSError, ValueError) as e:
+    except FileNotFoundError:
+        raise InputError(p, "session file not found") from None
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
         raise InputError(p, f"cannot read session file ({e.__class__.__name__})") from None
     return arrays, meta

@@ -47,8 +47,10 @@ class Camera:
             return f"dist: pinhole needs {'/'.join(map(str, PINHOLE_DIST_SIZES))} coefficients, got {self.dist.size}"
         if self.model == "fisheye" and self.dist.size != FISHEYE_DIST_SIZE:
             return f"dist: fisheye needs {FISHEYE_DIST_SIZE} coefficients, got {self.dist.size}"
-        if not (np.all(np.isfinite(self.K)) and np.all(np.isfinite(self.dist))):
-            return "K/dist: non-finite value"
+        if not np.all(np.isfinite(self.K)):
+            return "K: non-finite value"
+        if not np.all(np.isfinite(self.dist)):
+            return "dist: non-finite value"
         if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
             return f"K: focal lengths must be positive, got fx={self.K[0, 0]:g}, fy={self.K[1, 1]:g}"
         if not np.allclose(self.K[2], [0, 0, 1]) or self.K[1, 0] != 0:
