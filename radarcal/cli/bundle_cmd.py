@@ -29,6 +29,16 @@ def _summary(b) -> dict:
     return {"path": str(b.path), "cameras": cams, "sensors": b.sensors, "transforms": tfs, "field": (b.field_model or {}).get("name"), "runtime": b.runtime, "sessions": b.sessions}
 
 
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().replace("*", "x").split("x"))
+    except ValueError:
+        raise InputError("--image-size", f"expected WIDTHxHEIGHT, e.g. 1280x1024, got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise InputError("--image-size", f"width and height must be positive, got {text!r}")
+    return w, h
+
+
 @app.command()
 def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool = JsonOpt) -> None:
     """Print what the bundle holds."""
@@ -66,11 +76,13 @@ def import_(
     bundle: Path = typer.Argument(..., help="Bundle file (created if missing)."),
     file: Path = typer.Argument(..., help="ROS camera_info YAML, OpenCV YAML, Kalibr camchain or radarcal JSON."),
     camera: str = typer.Option(..., "--camera", help="Name of the camera in the bundle, e.g. cam0."),
-    select: str = typer.Option(None, "--select", help="Camera inside a multi-camera file (Kalibr cam1; OpenCV stereo 'right')."),
+    select: str = typer.Option(None, "--select", help="Camera inside a multi-camera file (Kalibr cam1; OpenCV stereo 'left'/'right' = M1/D1 or M2/D2)."),
+    image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT, for files that do not record it (OpenCV stereo_calib output)."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Import camera intrinsics from another tool's file."""
-    cam, fmt = import_camera(file, select)
+    size = _parse_size(image_size) if image_size else None
+    cam, fmt = import_camera(file, select, size)
     b = load_or_create_bundle(bundle)
     b.set_camera(camera, cam, provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs([file])), extra={"imported_from": fmt})
     save_bundle(b, bundle)

@@ -51,10 +51,18 @@ def _camera(path: Path, size, K, dist, model) -> Camera:
         raise InputError(path, str(e)) from None
 
 
-def _import_opencv(path: Path, text: str, name: str | None) -> Camera:
+def _import_opencv(path: Path, text: str, name: str | None, image_size: tuple[int, int] | None = None) -> Camera:
     import cv2
 
-    fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+    except (cv2.error, SystemError) as e:  # a parse error surfaces as SystemError from the constructor
+        cause = e.__cause__ if isinstance(e, SystemError) and e.__cause__ is not None else e
+        import re
+
+        m = re.match(r".*\((\d+)\): (.*)", str(getattr(cause, "func", "") or ""))
+        detail = f"line {m[1]}: {m[2]}" if m else str(getattr(cause, "err", "") or "parse error")
+        raise InputError(path, f"OpenCV FileStorage cannot parse the file ({detail.strip()[:160]})") from None
     try:
         if not fs.isOpened():
             raise InputError(path, "OpenCV FileStorage cannot open the file")
@@ -91,8 +99,10 @@ def _import_opencv(path: Path, text: str, name: str | None) -> Camera:
             size = num("image_size", "imageSize", "resolution")
             if isinstance(size, list) and len(size) == 2:
                 w, h = size
+        if image_size is not None:
+            w, h = image_size
         if w is None or h is None:
-            raise InputError(path, "no image size (image_width/image_height, Camera.width/height or image_size)")
+            raise InputError(path, "no image size in the file (image_width/image_height, Camera.width/height or image_size); give it with --image-size WxH")
         model_node = fs.getNode("distortion_model")
         model = _opencv_model(model_node.string() if not model_node.empty() else "", path)
         if model == "pinhole" and dist.size == 4 and fs.getNode("distortion_model").empty() and "fisheye" in text.lower():
@@ -129,11 +139,20 @@ def _import_kalibr(path: Path, d: dict, name: str | None) -> Camera:
         raise InputError(path, f"Kalibr camchain {key}: bad or missing field ({e})") from None
 
 
-def import_camera(path: str | os.PathLike, name: str | None = None) -> tuple[Camera, str]:
+def import_camera(path: str | os.PathLike, name: str | None = None, image_size: tuple[int, int] | None = None) -> tuple[Camera, str]:
     """Read intrinsics from any supported file; returns (camera, detected format).
 
-    ``name`` selects a camera in multi-camera files (Kalibr ``cam1``; OpenCV stereo ``right`` picks M2/D2)."""
+    ``name`` selects a camera in multi-camera files (Kalibr ``cam1``; OpenCV stereo ``left``/``right`` picks
+    M1/D1 or M2/D2). ``image_size`` (width, height) is used for files that do not record it (OpenCV's
+    ``stereo_calib`` output) and overrides the file's value otherwise."""
     path = Path(path)
+    cam, fmt = _import_any(path, name, image_size)
+    if image_size is not None and tuple(cam.image_size) != tuple(image_size):
+        cam = _camera(path, image_size, cam.K, cam.dist, cam.model)
+    return cam, fmt
+
+
+def _import_any(path: Path, name: str | None, image_size: tuple[int, int] | None) -> tuple[Camera, str]:
     try:
         text = path.read_text(errors="replace")
     except FileNotFoundError:
@@ -142,7 +161,7 @@ def import_camera(path: str | os.PathLike, name: str | None = None) -> tuple[Cam
         raise InputError(path, f"cannot read ({e.__class__.__name__})") from None
     fmt = detect_camera_format(text)
     if fmt == "opencv":
-        return _import_opencv(path, text, name), fmt
+        return _import_opencv(path, text, name, image_size), fmt
     if fmt == "json":
         try:
             d = json.loads(text)
