@@ -28,12 +28,17 @@ def parse_transform_text(text: str, source: object = "") -> np.ndarray:
             if len(keys) != 1:
                 raise InputError(source, "JSON must hold exactly one 'T' or 'T_a_b' key with a 4x4 matrix")
             value = value[keys[0]]
-        numbers = np.asarray(value, dtype=float).ravel() if value is not None else np.array([])
+        try:
+            numbers = np.asarray(value, dtype=float).ravel() if value is not None else np.array([])
+        except (TypeError, ValueError):
+            raise InputError(source, "expected 16 numbers (4x4) or 6 numbers (x y z roll pitch yaw) in the JSON") from None
     else:
         try:
             numbers = np.array([float(tok) for tok in text.replace(",", " ").split()])
         except ValueError:
             raise InputError(source, "expected 16 numbers (4x4) or 6 numbers (x y z roll pitch yaw)") from None
+    if not np.all(np.isfinite(numbers)):
+        raise InputError(source, "non-finite value in transform")
     if numbers.size == 6:
         return geometry.T_from_xyz_rpy_deg(*numbers)
     if numbers.size == 12:
