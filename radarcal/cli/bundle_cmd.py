@@ -105,7 +105,10 @@ def export(
     if out is None:
         typer.echo(text, nl=False)
     else:
-        out.write_text(text)
+        try:
+            out.write_text(text)
+        except OSError as e:
+            raise InputError(out, f"cannot write ({e.strerror or e.__class__.__name__})") from None
         typer.echo(f"wrote {out} ({fmt})", err=True)
 
 

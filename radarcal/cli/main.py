@@ -27,9 +27,31 @@ synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' forma
 app.add_typer(synth_app, name="synth")
 
 
+def _click_classes(name: str) -> tuple[type, ...]:
+    """``name`` from click and from the copy of click that typer >= 0.2x vendors (``typer._click``)."""
+    import importlib
+
+    found = []
+    for module in ("click.exceptions", "typer._click.exceptions"):
+        try:
+            cls = getattr(importlib.import_module(module), name)
+        except (ImportError, AttributeError):
+            continue
+        if cls not in found:
+            found.append(cls)
+    return tuple(found)
+
+
+_EXIT = _click_classes("Exit")
+_ABORT = _click_classes("Abort")
+_CLICK_ERROR = _click_classes("ClickException")
+_NO_ARGS = _click_classes("NoArgsIsHelpError")
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI. Bad input -> ``error: <file>: <problem>`` on stderr, exit 2; never a traceback unless --debug."""
-    args = sys.argv[1:] if argv is None else argv
+    """Run the CLI and return the exit code. Bad input -> ``error: <file>: <problem>`` on stderr, exit 2;
+    usage errors -> click's usage message, exit 2; never a traceback unless --debug (or RADARCAL_DEBUG=1)."""
+    args = sys.argv[1:] if argv is None else [str(a) for a in argv]
     debug = "--debug" in args or os.environ.get("RADARCAL_DEBUG") == "1"
     try:
         app(args=args, prog_name="radarcal", standalone_mode=False)
@@ -39,14 +61,16 @@ def main(argv: list[str] | None = None) -> int:
             raise
         click.echo(f"error: {e}", err=True)
         return 2
-    except click.exceptions.Exit as e:
-        return e.exit_code
-    except click.exceptions.Abort:
+    except _EXIT as e:
+        return int(e.exit_code or 0)
+    except _ABORT:
         click.echo("aborted", err=True)
         return 130
-    except click.ClickException as e:
+    except _NO_ARGS:
+        return 2  # the help text has been printed already
+    except _CLICK_ERROR as e:
         e.show()
-        return e.exit_code
+        return int(getattr(e, "exit_code", 2))
     except KeyboardInterrupt:
         click.echo("interrupted", err=True)
         return 130
