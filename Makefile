@@ -6,7 +6,7 @@ STAMP := $(VENV)/.radarcal-installed
 export MPLBACKEND := Agg
 export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
-.PHONY: demo test test-slow bench install clean
+.PHONY: demo test test-slow bench install sysdeps clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -14,18 +14,27 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[test]'
 	@touch $(STAMP)
 
-install: $(STAMP)
+install: $(STAMP) sysdeps
 
-demo: $(STAMP)
+# open3d's wheel links libusb-1.0, which a bare Debian image lacks ("libusb-1.0.so.0: cannot open shared object
+# file"). Install it with apt when we can (root + apt-get), otherwise say what is missing.
+sysdeps:
+	@ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0' || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing libusb-1.0-0 (needed by open3d)"; \
+	    apt-get install -y -qq libusb-1.0-0 >/dev/null 2>&1 || { apt-get update -qq >/dev/null && apt-get install -y -qq libusb-1.0-0 >/dev/null; }; \
+	  else echo "warning: libusb-1.0 is missing; open3d will not import (apt-get install libusb-1.0-0)"; fi; }
+
+demo: $(STAMP) sysdeps
 	$(PY) -m radarcal.demo
 
-test: $(STAMP)
+test: $(STAMP) sysdeps
 	$(PY) -m pytest -q
 
-test-slow: $(STAMP)
+test-slow: $(STAMP) sysdeps
 	$(PY) -m pytest -q -m slow
 
-bench: $(STAMP)
+bench: $(STAMP) sysdeps
 	$(PY) -m benchmarks
 
 clean:
