@@ -8,7 +8,13 @@ Roll-pitch-yaw means intrinsic z-y'-x'' (yaw about z, then pitch about y, then r
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+
+def _Rotation():
+    """scipy's Rotation, imported on first use (scipy.spatial costs ~0.3 s at CLI start-up)."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation
 
 __all__ = [
     "make_T",
@@ -61,11 +67,11 @@ def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
 
 
 def rotvec_to_R(rotvec: np.ndarray) -> np.ndarray:
-    return Rotation.from_rotvec(np.asarray(rotvec, float).reshape(3)).as_matrix()
+    return _Rotation().from_rotvec(np.asarray(rotvec, float).reshape(3)).as_matrix()
 
 
 def R_to_rotvec(R: np.ndarray) -> np.ndarray:
-    return Rotation.from_matrix(np.asarray(R, float)).as_rotvec()
+    return _Rotation().from_matrix(np.asarray(R, float)).as_rotvec()
 
 
 def T_from_rotvec(rotvec: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -81,12 +87,12 @@ def T_to_rotvec(T: np.ndarray) -> np.ndarray:
 
 def rpy_deg_to_R(roll: float, pitch: float, yaw: float) -> np.ndarray:
     """``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` with angles in degrees (user interface)."""
-    return Rotation.from_euler("ZYX", [yaw, pitch, roll], degrees=True).as_matrix()
+    return _Rotation().from_euler("ZYX", [yaw, pitch, roll], degrees=True).as_matrix()
 
 
 def R_to_rpy_deg(R: np.ndarray) -> np.ndarray:
     """Inverse of :func:`rpy_deg_to_R`: ``[roll, pitch, yaw]`` in degrees."""
-    yaw, pitch, roll = Rotation.from_matrix(np.asarray(R, float)).as_euler("ZYX", degrees=True)
+    yaw, pitch, roll = _Rotation().from_matrix(np.asarray(R, float)).as_euler("ZYX", degrees=True)
     return np.array([roll, pitch, yaw])
 
 
