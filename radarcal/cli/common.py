@@ -57,6 +57,13 @@ def progress(iterable, description: str, total: int | None = None, enabled: bool
     return track(iterable, description=description, total=total, console=err_console, transient=True)
 
 
+_current_argv: list[str] | None = None  # set by radarcal.cli.main.main() while a command runs
+
+
 def command_line() -> str:
-    """The command line as typed, for provenance."""
-    return " ".join(["radarcal"] + sys.argv[1:])
+    """The command line as typed (shell-quoted), for provenance; also right when the CLI runs in-process
+    through ``radarcal.cli.main.main([...])``."""
+    import shlex
+
+    argv = sys.argv[1:] if _current_argv is None else _current_argv
+    return " ".join(["radarcal", *(shlex.quote(str(a)) for a in argv)])

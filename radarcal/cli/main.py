@@ -8,7 +8,7 @@ import sys
 import click
 import typer
 
-from radarcal.cli import bundle_cmd
+from radarcal.cli import bundle_cmd, common
 from radarcal.errors import InputError
 
 app = typer.Typer(name="radarcal", help="Calibration for camera / LiDAR / mmWave-radar rigs.", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -53,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
     usage errors -> click's usage message, exit 2; never a traceback unless --debug (or RADARCAL_DEBUG=1)."""
     args = sys.argv[1:] if argv is None else [str(a) for a in argv]
     debug = "--debug" in args or os.environ.get("RADARCAL_DEBUG") == "1"
+    previous, common._current_argv = common._current_argv, args
     try:
         app(args=args, prog_name="radarcal", standalone_mode=False)
         return 0
@@ -79,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
             raise
         click.echo(f"error: internal error: {e.__class__.__name__}: {e} (run with --debug for the traceback)", err=True)
         return 1
+    finally:
+        common._current_argv = previous
 
 
 def _entry() -> None:

@@ -64,7 +64,9 @@ def test_full_workflow(files, capsys):
     assert np.array_equal(bundle.T("cam0", "lidar0"), files["T_value"])
     np.testing.assert_allclose(bundle.T("field", "lidar0"), g.T_from_xyz_rpy_deg(14.0, -1.5, 2.6, -101.0, 0.5, 179.0) @ files["T_value"], atol=1e-12)
     prov = bundle.transforms["T_cam0_lidar0"].provenance
-    assert prov.command.startswith("radarcal") and len(prov.inputs_sha256) == 64
+    assert prov.command == f"radarcal bundle set-transform {b} cam0 lidar0 {files['T']}"
+    assert len(prov.inputs_sha256) == 64 and prov.time.startswith("20")
+    assert bundle.cameras["cam0"].provenance.command == f"radarcal bundle import {b} {files['cam']} --camera cam0"
     assert bundle.transforms["T_cam0_lidar0"].method == "manual (set-transform)"
 
 
