@@ -63,6 +63,7 @@ def test_opencv_export_reads_back_with_cv2(tmp_path):
     cam = CAMS["rational8"]
     p = tmp_path / "cam.yaml"
     p.write_text(export_camera(cam, "opencv"))
+    assert p.read_text().startswith("%YAML:1.0\n")  # the header older tools (and OpenCV 4) expect
     fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
     assert np.array_equal(fs.getNode("camera_matrix").mat(), cam.K)
     assert np.array_equal(fs.getNode("distortion_coefficients").mat().ravel(), cam.dist)
