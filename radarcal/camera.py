@@ -153,48 +153,96 @@ class Camera:
         x[~(rd <= g_tab[-1])] = np.nan  # beyond the fold (or NaN input)
         return x
 
+    def _fisheye_theta(self, theta_d: np.ndarray) -> np.ndarray:
+        """Angle off axis for distorted fisheye radii: tabulated inverse + Newton on
+        ``theta_d = theta (1 + k1 t^2 + k2 t^4 + k3 t^6 + k4 t^8)``; NaN past the fold."""
+        d = self.dist
+        theta = self._invert_radius(theta_d)
+        for _ in range(6):
+            t2 = theta * theta
+            g = theta * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))) - theta_d
+            dg = 1 + t2 * (3 * d[0] + t2 * (5 * d[1] + t2 * (7 * d[2] + t2 * 9 * d[3])))
+            theta = theta - g / dg
+        return theta
+
+    def _distort_jacobian(self, xy: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Analytic 2x2 Jacobian of the pinhole :meth:`distort` at undistorted ``xy``: (dxd/dx, dxd/dy, dyd/dx, dyd/dy)."""
+        k = np.zeros(12)
+        k[: self.dist.size] = self.dist
+        k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = k
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        dnum = k1 + r2 * (2 * k2 + r2 * 3 * k3)
+        dden = k4 + r2 * (2 * k5 + r2 * 3 * k6)
+        radial = num / den
+        drad = (dnum * den - num * dden) / (den * den)  # d radial / d r2
+        px = s1 + 2 * s2 * r2
+        py = s3 + 2 * s4 * r2
+        j00 = radial + 2 * x * x * drad + 2 * p1 * y + 6 * p2 * x + 2 * x * px
+        j01 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y + 2 * y * px
+        j10 = 2 * x * y * drad + 2 * p1 * x + 2 * p2 * y + 2 * x * py
+        j11 = radial + 2 * y * y * drad + 6 * p1 * y + 2 * p2 * x + 2 * y * py
+        return j00, j01, j10, j11
+
     def undistort(self, xyd: np.ndarray, iterations: int = 20) -> np.ndarray:
         """Inverse of :meth:`distort`: distorted normalised coordinates (N,2) -> undistorted (N,2).
 
-        Starts from the exact inverse of the radial part (tabulated on the lens model's monotonic branch, so
-        strong barrel distortion does not send it onto the wrong branch), then Newton iterations with a
-        numeric 2x2 Jacobian and step halving for the tangential / thin-prism terms. Points that have no
-        inverse (beyond the fold of the distortion polynomial, or a fisheye angle of 90 degrees or more) or
-        that do not converge come back as NaN.
+        Pinhole: starts from the exact inverse of the radial part (tabulated on the polynomial's monotonic
+        branch, so strong barrel distortion cannot send it onto the wrong branch), then Newton steps with the
+        analytic Jacobian (halved where a full step does not reduce the residual) for the tangential and
+        thin-prism terms. Fisheye: the angle is solved in 1-D. Points with no inverse (past the fold of the
+        distortion polynomial, or a fisheye angle of 90 degrees or more) or that do not converge are NaN.
         """
         xyd = np.asarray(xyd, float).reshape(-1, 2)
         rd = np.hypot(xyd[:, 0], xyd[:, 1])
-        x0 = self._invert_radius(rd)
+        nonzero = rd > 1e-300
         if self.model == "fisheye":
-            with np.errstate(invalid="ignore"):
-                x0 = np.where(x0 < np.pi / 2 - 1e-9, np.tan(np.where(x0 < np.pi / 2 - 1e-9, x0, 0.0)), np.nan)
+            theta = self._fisheye_theta(rd)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ok = theta < np.pi / 2 - 1e-12
+                scale = np.where(nonzero, np.tan(np.where(ok, theta, 0.0)) / np.where(nonzero, rd, 1.0), 1.0)
+            xy = xyd * scale[:, None]
+            xy[~ok] = np.nan
+            return xy
+        r0 = self._invert_radius(rd)
         with np.errstate(divide="ignore", invalid="ignore"):
-            scale = np.where(rd > 1e-300, x0 / np.where(rd > 1e-300, rd, 1.0), 1.0)
+            scale = np.where(nonzero, r0 / np.where(nonzero, rd, 1.0), 1.0)
         xy = xyd * scale[:, None]
-        eps = 1e-7
         f = self.distort(xy) - xyd
         err = np.hypot(f[:, 0], f[:, 1])
+        tol = 1e-15 * np.maximum(1.0, rd)
+        active = np.flatnonzero(np.isfinite(err) & (err > tol))
         for _ in range(max(int(iterations), 1)):
-            todo = np.isfinite(err) & (err > 1e-15 * np.maximum(1.0, rd))
-            if not todo.any():
+            if active.size == 0:
                 break
-            p, fp = xy[todo], f[todo]
-            jx = (self.distort(p + [eps, 0]) - self.distort(p - [eps, 0])) / (2 * eps)
-            jy = (self.distort(p + [0, eps]) - self.distort(p - [0, eps])) / (2 * eps)
-            det = jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
+            p, fp, e0 = xy[active], f[active], err[active]
+            j00, j01, j10, j11 = self._distort_jacobian(p)
+            det = j00 * j11 - j01 * j10
             det = np.where(np.abs(det) < 1e-300, 1e-300, det)
-            step = np.stack([(jy[:, 1] * fp[:, 0] - jy[:, 0] * fp[:, 1]) / det, (-jx[:, 1] * fp[:, 0] + jx[:, 0] * fp[:, 1]) / det], axis=1)
-            e0 = err[todo]
-            lam = np.ones(len(p))
-            for _half in range(8):  # step halving where a full step makes things worse
-                cand = p - step * lam[:, None]
-                fc = self.distort(cand) - xyd[todo]
-                ec = np.hypot(fc[:, 0], fc[:, 1])
-                worse = ~(ec <= e0)
+            step = np.stack([(j11 * fp[:, 0] - j01 * fp[:, 1]) / det, (-j10 * fp[:, 0] + j00 * fp[:, 1]) / det], axis=1)
+            cand = p - step
+            fc = self.distort(cand) - xyd[active]
+            ec = np.hypot(fc[:, 0], fc[:, 1])
+            lam = 1.0
+            worse = ~(ec < e0)
+            for _half in range(8):  # step halving where the full step does not help
                 if not worse.any():
                     break
-                lam = np.where(worse, lam * 0.5, lam)
-            xy[todo], f[todo], err[todo] = cand, fc, np.where(worse, e0, ec)
+                lam *= 0.5
+                sub = np.flatnonzero(worse)
+                c2 = p[sub] - lam * step[sub]
+                f2 = self.distort(c2) - xyd[active[sub]]
+                e2 = np.hypot(f2[:, 0], f2[:, 1])
+                better = e2 < e0[sub]
+                cand[sub[better]], fc[sub[better]], ec[sub[better]] = c2[better], f2[better], e2[better]
+                worse[sub[better]] = False
+            improved = ~worse
+            idx = active[improved]
+            xy[idx], f[idx], err[idx] = cand[improved], fc[improved], ec[improved]
+            # points that cannot improve any more have reached rounding level (or are stuck: judged below)
+            active = idx[err[idx] > tol[idx]]
         bad = ~(err <= 1e-10 * np.maximum(1.0, rd))
         xy[bad] = np.nan
         return xy
@@ -207,14 +255,8 @@ class Camera:
         Kinv = np.linalg.inv(self.K)
         xyd = uv @ Kinv[:2, :2].T + Kinv[:2, 2]
         if self.model == "fisheye":
-            d = self.dist
             theta_d = np.hypot(xyd[:, 0], xyd[:, 1])
-            theta = self._invert_radius(theta_d)
-            for _ in range(8):  # Newton polish of the tabulated inverse: theta_d = theta (1 + k1 t^2 + ...)
-                t2 = theta * theta
-                g = theta * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3])))) - theta_d
-                dg = 1 + t2 * (3 * d[0] + t2 * (5 * d[1] + t2 * (7 * d[2] + t2 * 9 * d[3])))
-                theta = theta - g / dg
+            theta = self._fisheye_theta(theta_d)
             with np.errstate(divide="ignore", invalid="ignore"):
                 s = np.where(theta_d > 1e-300, np.sin(theta) / np.where(theta_d > 1e-300, theta_d, 1.0), 1.0)
             return np.concatenate([xyd * s[:, None], np.cos(theta)[:, None]], axis=1)
