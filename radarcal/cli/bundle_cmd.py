@@ -65,10 +65,11 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool 
 
 
 @app.command()
-def validate(bundle: Path = typer.Argument(..., help="Bundle file.")) -> None:
+def validate(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool = JsonOpt) -> None:
     """Load and check the bundle; exit 0 when valid, 2 with the offending field otherwise."""
     b = load_bundle(bundle)
-    typer.echo(f"ok: {bundle}: {len(b.cameras)} camera(s), {len(b.transforms)} transform(s)")
+    summary = {"ok": True, "path": str(bundle), "cameras": sorted(b.cameras), "transforms": sorted(b.transforms)}
+    emit(summary, as_json, lambda s: typer.echo(f"ok: {bundle}: {len(b.cameras)} camera(s), {len(b.transforms)} transform(s)"))
 
 
 @app.command("import")
@@ -96,20 +97,23 @@ def export(
     camera: str = typer.Option(..., "--camera"),
     fmt: str = typer.Option("ros", "--format", help=f"One of: {', '.join(EXPORT_FORMATS)}."),
     out: Path = typer.Option(None, "-o", "--output", help="Output file (stdout if omitted)."),
+    as_json: bool = JsonOpt,
 ) -> None:
-    """Export one camera's intrinsics for another tool."""
+    """Export one camera's intrinsics for another tool (--json: {camera, format, output, text} on stdout)."""
     if fmt not in EXPORT_FORMATS:
         raise InputError("--format", f"unknown format {fmt!r} (choose {', '.join(EXPORT_FORMATS)})")
     b = load_bundle(bundle)
     text = export_camera(b.camera(camera), fmt, camera)
-    if out is None:
-        typer.echo(text, nl=False)
-    else:
+    if out is not None:
         try:
             out.write_text(text)
         except OSError as e:
             raise InputError(out, f"cannot write ({e.strerror or e.__class__.__name__})") from None
         typer.echo(f"wrote {out} ({fmt})", err=True)
+    if as_json:
+        emit({"camera": camera, "format": fmt, "output": None if out is None else str(out), "text": text}, True, lambda s: None)
+    elif out is None:
+        typer.echo(text, nl=False)
 
 
 @app.command("set-transform")
@@ -118,11 +122,16 @@ def set_transform(
     target: str = typer.Argument(..., help="Target frame a of T_a_b (e.g. cam0)."),
     source: str = typer.Argument(..., help="Source frame b of T_a_b (e.g. lidar0)."),
     file: Path = typer.Argument(..., help="4x4 as JSON or text, or 'x y z roll pitch yaw' (m, deg)."),
+    as_json: bool = JsonOpt,
 ) -> None:
     """Store T_target_source (maps points in SOURCE into TARGET) from a file."""
+    if target == source:
+        raise InputError("TARGET/SOURCE", f"a transform needs two different frames, got {target!r} twice")
     T = read_transform(file)
     b = load_or_create_bundle(bundle)
     b.set_transform(target, source, T, method="manual (set-transform)", provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs([file])))
     save_bundle(b, bundle)
     xyz_rpy = geometry.T_to_xyz_rpy_deg(T)
-    typer.echo(f"set T_{target}_{source}: xyz=({xyz_rpy[0]:.4f}, {xyz_rpy[1]:.4f}, {xyz_rpy[2]:.4f}) m rpy=({xyz_rpy[3]:.3f}, {xyz_rpy[4]:.3f}, {xyz_rpy[5]:.3f}) deg -> {bundle}")
+    summary = {"name": f"T_{target}_{source}", "target": target, "source": source, "T": T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "bundle": str(bundle)}
+    emit(summary, as_json, lambda s: typer.echo(
+        f"set T_{target}_{source}: xyz=({xyz_rpy[0]:.4f}, {xyz_rpy[1]:.4f}, {xyz_rpy[2]:.4f}) m rpy=({xyz_rpy[3]:.3f}, {xyz_rpy[4]:.3f}, {xyz_rpy[5]:.3f}) deg -> {bundle}"))

@@ -85,6 +85,20 @@ def test_show_json_is_clean(files, capsys):
     code, out, err = _run(capsys, "bundle", "import", b, files["cam"], "--camera", "cam1", "--json")
     d = json.loads(out)
     assert code == 0 and d["camera"] == "cam1" and d["format"] == "json" and d["K"] == K
+    code, out, err = _run(capsys, "bundle", "validate", b, "--json")
+    assert code == 0 and json.loads(out) == {"ok": True, "path": str(b), "cameras": ["cam0", "cam1"], "transforms": ["T_cam0_lidar0"]}
+    code, out, err = _run(capsys, "bundle", "set-transform", b, "field", "cam0", files["pose"], "--json")
+    d = json.loads(out)
+    assert code == 0 and d["name"] == "T_field_cam0" and d["xyz_m"] == [14.0, -1.5, 2.6]
+    np.testing.assert_allclose(d["rpy_deg"], [-101.0, 0.5, 179.0], atol=1e-9)
+    np.testing.assert_allclose(d["T"], g.T_from_xyz_rpy_deg(14.0, -1.5, 2.6, -101.0, 0.5, 179.0), atol=1e-15)
+    code, out, err = _run(capsys, "bundle", "export", b, "--camera", "cam0", "--format", "ros", "--json")
+    d = json.loads(out)
+    assert code == 0 and d["format"] == "ros" and d["output"] is None
+    assert yaml.safe_load(d["text"])["camera_matrix"]["data"] == np.ravel(K).tolist()
+    target = files["dir"] / "cam0.yaml"
+    code, out, err = _run(capsys, "bundle", "export", b, "--camera", "cam0", "--format", "opencv", "-o", target, "--json")
+    assert code == 0 and json.loads(out)["output"] == str(target) and target.read_text() == json.loads(out)["text"]
 
 
 @pytest.mark.parametrize("fmt", ["ros", "opencv", "kalibr", "json"])
@@ -121,6 +135,8 @@ BAD = [
     (lambda f: ["bundle", "set-transform", f["bundle"], "cam0", "lidar0", f["garbage"]], lambda f: f["garbage"], "expected 16 numbers"),
     (lambda f: ["bundle", "set-transform", f["bundle"], "cam0", "lidar0", f["non_rigid"]], lambda f: f["non_rigid"], "rotation part is not orthonormal"),
     (lambda f: ["bundle", "set-transform", f["bundle"], "cam0", "lidar0", f["dir"] / "nope.json"], lambda f: f["dir"] / "nope.json", "file not found"),
+    (lambda f: ["bundle", "set-transform", f["bundle"], "cam0", "cam0", f["T"], "--json"], lambda f: "TARGET/SOURCE", "two different frames"),
+    (lambda f: ["bundle", "validate", f["garbage"], "--json"], lambda f: f["garbage"], "schema_version: expected an integer"),
 ]
 
 
