@@ -214,6 +214,8 @@ class Bundle:
 
     def set_transform(self, target: str, source: str, T: np.ndarray, method: str = "", residual: dict | None = None, sigma: dict | None = None, provenance: Provenance | None = None) -> TransformEntry:
         """Store ``T_target_source``. An entry for the reverse direction is replaced (one edge per frame pair)."""
+        if not target or not source or target == source:
+            raise InputError(self.path, f"transforms.T_{target}_{source}: needs two different, non-empty frame names")
         T = np.asarray(T, float)
         _check_T(T, f"transforms.T_{target}_{source}.T", self.path)
         self.transforms.pop(f"T_{source}_{target}", None)
@@ -329,6 +331,8 @@ def bundle_from_dict(data: Any, path: Any = None) -> Bundle:
         target, source = d.get("target"), d.get("source")
         if not target or not source:
             raise InputError(path, f"{where}: needs 'target' and 'source' frame names")
+        if target == source:
+            raise InputError(path, f"{where}: target and source are the same frame")
         if name != f"T_{target}_{source}":
             raise InputError(path, f"{where}: key does not match target/source (expected T_{target}_{source})")
         T = _check_T(d.get("T"), f"{where}.T", path)

@@ -112,6 +112,8 @@ def test_set_transform_replaces_reverse_edge_and_rejects_non_rigid():
     bad[:3, :3] *= 1.1
     with pytest.raises(InputError, match=r"transforms\.T_lidar0_cam0\.T: rotation part is not orthonormal"):
         b.set_transform("lidar0", "cam0", bad)
+    with pytest.raises(InputError, match=r"transforms\.T_cam0_cam0: needs two different"):
+        b.set_transform("cam0", "cam0", T)
 
 
 def test_camera_lookup():
