@@ -477,7 +477,10 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike | None = None) -> Path:
         raise ValueError("save_bundle needs a path")
     text = bundle.dumps()
     bundle_from_dict(yaml.safe_load(text), path)  # never write what we could not load back
-    _atomic_write(path, text.encode("utf-8"))
+    try:
+        _atomic_write(path, text.encode("utf-8"))
+    except OSError as e:
+        raise InputError(path, f"cannot write bundle ({e.strerror or e.__class__.__name__})") from None
     bundle.path = path
     return path
 
@@ -492,7 +495,10 @@ def save_session(bundle: Bundle, key: str, arrays: dict[str, np.ndarray], meta: 
     import json
 
     np.savez_compressed(buf, __meta__=np.array(json.dumps(_plain(meta or {}))), **{k: np.asarray(v) for k, v in arrays.items()})
-    _atomic_write(bundle.path.parent / rel, buf.getvalue(), keep_backup=False)
+    try:
+        _atomic_write(bundle.path.parent / rel, buf.getvalue(), keep_backup=False)
+    except OSError as e:
+        raise InputError(bundle.path.parent / rel, f"cannot write session file ({e.strerror or e.__class__.__name__})") from None
     bundle.sessions[key] = rel.as_posix()
     return bundle.path.parent / rel
 

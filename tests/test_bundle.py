@@ -228,6 +228,12 @@ def test_atomic_save_survives_kill_between_write_and_rename(tmp_path):
     assert load_bundle(path).runtime["hero_range_offset_m"] == 1.0
 
 
+def test_save_to_unwritable_place_is_an_input_error(tmp_path):
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(InputError, match="cannot write bundle"):
+        save_bundle(_bundle(), tmp_path / "file" / "rig.yaml")
+
+
 def test_load_or_create(tmp_path):
     b = load_or_create_bundle(tmp_path / "new.yaml")
     assert b.cameras == {} and b.path == tmp_path / "new.yaml" and not (tmp_path / "new.yaml").exists()
