@@ -118,7 +118,10 @@ def _refine(camera: Camera, x0: np.ndarray, P: np.ndarray, uv: np.ndarray) -> tu
         x = sol.x
     except (ValueError, np.linalg.LinAlgError):
         x = x0
-    r = fun(x).reshape(-1, 2)
+    u, valid = _project(camera, x, P)
+    if not np.all(valid):
+        return x, float("inf")
+    r = u - uv
     return x, float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
 
 
@@ -265,7 +268,8 @@ def solve_field_pnp(camera: Camera, p_field: np.ndarray, uv: np.ndarray, names: 
         ok = [c for c in cands if c["plausible"]]
         if not ok:
             best = min(cands, key=lambda c: c["rms_px"])
-            raise FieldPnPError(f"camera pose implausible: {best['why_not']} (best fit {best['rms_px']:.1f} px) — are the picks in the right order / the right landmarks?")
+            fit = f" (best fit {best['rms_px']:.1f} px)" if np.isfinite(best["rms_px"]) else ""
+            raise FieldPnPError(f"camera pose implausible: {best['why_not']}{fit} — are the picks in the right order / the right landmarks?")
         ok.sort(key=lambda c: c["rms_px"])
         best = ok[0]
         if n == 4 or inl.all():

@@ -198,3 +198,16 @@ def test_deterministic_per_seed(tmp_path, fm):
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
     assert (a / "truth.jsonl").read_bytes() != (c / "truth.jsonl").read_bytes()
     assert (a / "clouds/000000.pcd").read_bytes() != (c / "clouds/000000.pcd").read_bytes()
+
+
+def test_cli_writes_replay_and_rejects_bad_options(tmp_path, capsys):
+    from radarcal.cli.main import main
+
+    out = tmp_path / "r"
+    code = main(["synth", "field", str(out), "--frames", "3", "--robots", "2", "--lidar-points", "300", "--image-scale", "0.1", "--lidar-gap", "0:0.05", "--json"])
+    s = json.loads(capsys.readouterr().out)
+    assert code == 0 and s["frames"] == 3 and s["clouds"] == 0  # 3 frames = 0.1 s -> one cloud at t = 0, in the gap
+    assert (out / "meta.json").is_file() and len((out / "detections.jsonl").read_text().splitlines()) == 3
+    assert main(["synth", "field", str(tmp_path / "x"), "--lidar-gap", "soon"]) == 2
+    assert "--lidar-gap" in capsys.readouterr().err
+    assert main(["synth", "field", str(tmp_path / "x"), "--robots", "20"]) == 2
