@@ -153,7 +153,17 @@ def _candidate_params(camera: Camera, P: np.ndarray, uv: np.ndarray) -> list[np.
     xy = _normalised(camera, uv)
     cands = _closed_form(P, xy, cv2.SOLVEPNP_SQPNP)
     if _coplanar(P):
-        cands += _closed_form(P, xy, cv2.SOLVEPNP_IPPE)
+        # IPPE in OpenCV 5.0 returns a wrong pose for a plane off z = 0 (measured: 144 deg off for the central
+        # highland's top at z = 0.6 m), so solve in a plane-aligned frame and map back
+        c = P.mean(0)
+        Vt = np.linalg.svd(P - c)[2]
+        if np.linalg.det(Vt) < 0:
+            Vt[2] *= -1
+        Q = (P - c) @ Vt.T
+        Q[:, 2] = 0.0
+        T_plane_field = geometry.make_T(Vt, -Vt @ c)
+        for x in _closed_form(Q, xy, cv2.SOLVEPNP_IPPE):
+            cands.append(pose_to_params(params_to_pose(x) @ T_plane_field))
     triples = list(itertools.combinations(range(len(P)), 3))
     if len(triples) > 20:
         triples = triples[:: max(1, len(triples) // 20)]
