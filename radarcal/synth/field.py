@@ -70,6 +70,7 @@ class FieldSceneConfig:
     lidar_gap: tuple[float, float] | None = None  # (start s, duration s): no clouds in that window
     image_scale: float = 0.5             # render at this fraction of the resolution, then resize to full size
     jpeg_quality: int = 70
+    image_every: int = 1                 # write an image for every k-th camera frame only (size); detections every frame
     det_jitter_px: float = 0.0           # σ of Gaussian jitter on detection box edges
     det_dropout: float = 0.0             # probability that a visible robot has no detection in a frame
     speed: float = 1.5                   # typical robot speed, m/s
@@ -518,10 +519,13 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
     for f in track(range(n), description="frames"):
         fname = f"{f:06d}.jpg"
         boxes_f = scene_boxes(field_model, robots, p_all[f], yaw_all[f])
-        img = render_frame(field_model, rig, background, SceneBoxes(boxes_f.center[len(static):], boxes_f.size[len(static):], boxes_f.yaw[len(static):], boxes_f.names[len(static):], boxes_f.kinds[len(static):], boxes_f.colors[len(static):]), config.image_scale)
-        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(config.jpeg_quality)])
-        (out / "images" / fname).write_bytes(buf.tobytes())
-        img_times.append((fname, t_img[f]))
+        if f % max(1, config.image_every) == 0:
+            ns = len(static)
+            robots_f = SceneBoxes(boxes_f.center[ns:], boxes_f.size[ns:], boxes_f.yaw[ns:], boxes_f.names[ns:], boxes_f.kinds[ns:], boxes_f.colors[ns:])
+            img = render_frame(field_model, rig, background, robots_f, config.image_scale)
+            ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(config.jpeg_quality)])
+            (out / "images" / fname).write_bytes(buf.tobytes())
+            img_times.append((fname, t_img[f]))
         rob_truth, dets = [], []
         for k, r in enumerate(robots):
             c, size, yw = p_all[f, k], np.asarray(r.size), yaw_all[f, k]
@@ -599,4 +603,4 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
     meta = {"camera": "cam0", "lidar": "lidar0", "field": field_model.name, "fps": config.fps, "lidar_hz": config.lidar_hz, "n_frames": n, "seed": config.seed, "generator": generator}
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
-    return {"out": str(out), "frames": n, "clouds": len(cloud_times), "robots": len(robots), "visible_boxes": n_vis, "cloud_points": n_points_total, "landmarks_in_image": sorted(landmark_px), "bytes": size}
+    return {"out": str(out), "frames": n, "images": len(img_times), "clouds": len(cloud_times), "robots": len(robots), "visible_boxes": n_vis, "cloud_points": n_points_total, "landmarks_in_image": sorted(landmark_px), "bytes": size}

@@ -204,10 +204,12 @@ def test_cli_writes_replay_and_rejects_bad_options(tmp_path, capsys):
     from radarcal.cli.main import main
 
     out = tmp_path / "r"
-    code = main(["synth", "field", str(out), "--frames", "3", "--robots", "2", "--lidar-points", "300", "--image-scale", "0.1", "--lidar-gap", "0:0.05", "--json"])
+    code = main(["synth", "field", str(out), "--frames", "3", "--robots", "2", "--lidar-points", "300", "--image-scale", "0.1", "--lidar-gap", "0:0.05", "--image-every", "2", "--json"])
     s = json.loads(capsys.readouterr().out)
-    assert code == 0 and s["frames"] == 3 and s["clouds"] == 0  # 3 frames = 0.1 s -> one cloud at t = 0, in the gap
+    assert code == 0 and s["frames"] == 3 and s["images"] == 2 and s["clouds"] == 0  # 3 frames = 0.1 s -> one cloud at t = 0, in the gap
     assert (out / "meta.json").is_file() and len((out / "detections.jsonl").read_text().splitlines()) == 3
+    assert sorted(p.name for p in (out / "images").glob("*.jpg")) == ["000000.jpg", "000002.jpg"]
+    assert (out / "images" / "times.csv").read_text().split() == ["file,t", "000000.jpg,0.000000", "000002.jpg,0.066667"]
     assert main(["synth", "field", str(tmp_path / "x"), "--lidar-gap", "soon"]) == 2
     assert "--lidar-gap" in capsys.readouterr().err
     assert main(["synth", "field", str(tmp_path / "x"), "--robots", "20"]) == 2
