@@ -124,7 +124,6 @@ def field_pnp(
     prov = Provenance(command=command_line(), inputs_sha256=hash_inputs([picks_src] + ([image] if image else []), extra={"field": fm.to_dict(), "click_sigma": click_sigma, "max_rms": max_rms, "ransac_px": ransac_px}))
     b.set_transform(camera, "field", res.T_cam_field, method=f"field-pnp ({res.method}) on {fm.name}", residual={"rms_px": res.rms_px, "per_point_px": per_point, "n_picks": len(names), "n_inliers": int(res.inliers.sum()), "outliers": [n for n, k in zip(names, res.inliers) if not k]}, sigma=res.sigma, provenance=prov)
     b.field_model = fm.to_dict()
-    b.set_sensor("field", type="field", model=fm.name)
     save_session(
         b,
         f"field_pnp/{camera}",

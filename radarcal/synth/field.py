@@ -31,6 +31,8 @@ __all__ = [
     "robot_states",
     "scene_boxes",
     "raycast",
+    "object_names",
+    "object_kinds",
     "livox_rosette_dirs",
     "simulate_lidar",
     "box_corners",
