@@ -76,6 +76,7 @@ class FieldSceneConfig:
     det_jitter_px: float = 0.0           # σ of Gaussian jitter on detection box edges
     det_dropout: float = 0.0             # probability that a visible robot has no detection in a frame
     speed: float = 1.5                   # typical robot speed, m/s
+    station: str = "red"                 # whose radar station: red (x < 0 end) or blue (x > 28 end)
 
 
 @dataclass
@@ -120,8 +121,9 @@ class SceneBoxes:
 
 
 # --- rig -------------------------------------------------------------------------------------------------------
-def default_rig(field_model: FieldModel, rng: np.random.Generator | None = None) -> Rig:
-    """Red radar station: camera 2.5 m high at the red end of the field, looking over it; LiDAR mounted just below.
+def default_rig(field_model: FieldModel, rng: np.random.Generator | None = None, station: str = "red") -> Rig:
+    """Radar station: camera 2.5 m high at its own end of the field (red: x < 0, blue: x > 28, the central mirror),
+    looking over the field; LiDAR mounted just below.
 
     1280x1024, fx = fy = 1100 px (≈ 5.3 mm lens on 4.8 µm pixels, ±30° horizontal), mild radtan distortion.
     ``rng`` adds a small random variation of the mounting (seeded scenes differ a little)."""
@@ -138,6 +140,10 @@ def default_rig(field_model: FieldModel, rng: np.random.Generator | None = None)
     R_field_body = geometry.rpy_deg_to_R(np.rad2deg(roll), np.rad2deg(pitch), np.rad2deg(yaw))
     R_body_cam = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
     T_field_cam = geometry.make_T(R_field_body @ R_body_cam, pos)
+    if station == "blue":  # the field is centrally symmetric: turn the red station 180° about the centre's vertical
+        T_field_cam = np.array([[-1.0, 0, 0, L], [0, -1.0, 0, W], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]) @ T_field_cam
+    elif station != "red":
+        raise ValueError(f"station: expected red or blue, got {station!r}")
     # LiDAR (x forward, y left, z up) 9 cm below, 4 cm left of, 3 cm behind the camera, tilted ~1.2° against it
     R_cam_lidar = R_body_cam.T @ geometry.rpy_deg_to_R(0.6, -1.0, 0.8)
     T_cam_lidar = geometry.make_T(R_cam_lidar, np.array([-0.04, 0.09, -0.03]))
@@ -145,13 +151,15 @@ def default_rig(field_model: FieldModel, rng: np.random.Generator | None = None)
 
 
 # --- robots ----------------------------------------------------------------------------------------------------
-def make_robots(field_model: FieldModel, n: int, rng: np.random.Generator, speed: float = 1.5) -> list[RobotSpec]:
-    """``n`` robots (blue ones first: a red radar watches the enemy) with smooth random paths over the field."""
+def make_robots(field_model: FieldModel, n: int, rng: np.random.Generator, speed: float = 1.5, station: str = "red") -> list[RobotSpec]:
+    """``n`` robots (the enemy's first: a red station watches blue robots) with smooth random paths over the field."""
     if not 0 <= n <= len(_ROBOT_ORDER):
         raise ValueError(f"robots: expected 0..{len(_ROBOT_ORDER)}, got {n}")
     L, W = field_model.size
     out = []
-    for label in _ROBOT_ORDER[:n]:
+    swap = {"red": "blue", "blue": "red"}
+    order = _ROBOT_ORDER if station == "red" else ["_".join([swap[lb.split("_")[0]], lb.split("_")[1]]) for lb in _ROBOT_ORDER]
+    for label in order[:n]:
         rid = int(label.split("_")[1])
         K = 3
         omega = rng.uniform(0.08, 0.35, K)
@@ -160,6 +168,8 @@ def make_robots(field_model: FieldModel, n: int, rng: np.random.Generator, speed
         v = np.sqrt(np.sum((amp * omega[:, None]) ** 2) / 2)
         amp *= min(1.0, speed / max(v, 1e-6)) if v > speed else 1.0
         center = np.array([rng.uniform(0.25 * L, 0.85 * L), rng.uniform(0.3 * W, 0.7 * W)])
+        if station == "blue":
+            center = np.array([L, W]) - center
         out.append(RobotSpec(label, ROBOT_TYPES[rid], center, amp, omega, rng.uniform(0, 2 * np.pi, (K, 2))))
     return out
 
@@ -496,8 +506,8 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
     (out / "clouds").mkdir(parents=True, exist_ok=True)
     ss = np.random.SeedSequence(config.seed)
     rng_rig, rng_rob, rng_lidar, rng_det = (np.random.default_rng(s) for s in ss.spawn(4))
-    rig = default_rig(field_model, rng_rig)
-    robots = make_robots(field_model, config.robots, rng_rob, config.speed)
+    rig = default_rig(field_model, rng_rig, config.station)
+    robots = make_robots(field_model, config.robots, rng_rob, config.speed, config.station)
     cam = rig.camera
     T_cam_field = geometry.invert_T(rig.T_field_cam)
     track = progress or (lambda it, **_: it)
@@ -602,7 +612,7 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
         "field_model": field_model.to_dict(),
     }
     (out / "truth.json").write_text(json.dumps(truth, indent=1))
-    meta = {"camera": "cam0", "lidar": "lidar0", "field": field_model.name, "fps": config.fps, "lidar_hz": config.lidar_hz, "n_frames": n, "seed": config.seed, "generator": generator}
+    meta = {"camera": "cam0", "lidar": "lidar0", "station": config.station, "field": field_model.name, "fps": config.fps, "lidar_hz": config.lidar_hz, "n_frames": n, "seed": config.seed, "generator": generator}
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
     return {"out": str(out), "frames": n, "images": len(img_times), "clouds": len(cloud_times), "robots": len(robots), "visible_boxes": n_vis, "cloud_points": n_points_total, "landmarks_in_image": sorted(landmark_px), "bytes": size}

@@ -46,6 +46,16 @@ def test_exact_picks_recover_pose(fm, seed):
     np.testing.assert_allclose(r.camera_position, rig.T_field_cam[:3, 3], atol=1e-6)
 
 
+def test_exact_picks_blue_station(fm):
+    rig = default_rig(fm, np.random.default_rng(5), station="blue")
+    assert rig.T_field_cam[0, 3] > 28
+    names = DEFAULT_PICKS["blue"]
+    T, P, uv = _picks(rig, fm, names)
+    r = solve_field_pnp(rig.camera, P, uv, names, surface_z=fm.surface_z)
+    deg, m = geometry.pose_error(r.T_cam_field, T)
+    assert deg < 1e-6 and m < 1e-6
+
+
 def test_exact_picks_fisheye_camera(fm, rig):
     cam = Camera((1280, 1024), rig.camera.K, np.array([0.02, -0.01, 0.003, -0.001]), "fisheye")
     T, P, _ = _picks(rig, fm, RED4)
