@@ -147,3 +147,19 @@ def test_unknown_field_and_camera(work, capsys):
     assert "built-in: rmuc2024" in capsys.readouterr().err
     assert main(["field-pnp", "-b", str(b), "--points", str(p), "--camera", "cam9"]) == 2
     assert "no camera 'cam9'" in capsys.readouterr().err
+
+
+def test_overlay_draws_landmarks_where_they_are(work, capsys, scene):
+    b, truth, tmp = work
+    picks = _write_picks(tmp / "picks.csv", truth, RED4)
+    ov = tmp / "ov.png"
+    img = scene[0] / "images" / "000000.jpg"
+    assert main(["field-pnp", "-b", str(b), "--points", str(picks), "--image", str(img), "--overlay", str(ov)]) == 0
+    import cv2
+
+    a = cv2.imread(str(ov))
+    assert a.shape == (1024, 1280, 3)
+    u, v = (int(round(x)) for x in truth["landmark_pixels"]["blue_outpost"])
+    assert a[v, u, 2] > 200 and a[v, u, 0] < 80  # the red cross of the projected landmark sits on its true pixel
+    assert main(["field-pnp", "-b", str(b), "--points", str(picks), "--overlay", str(ov)]) == 2
+    assert "needs --image" in capsys.readouterr().err
