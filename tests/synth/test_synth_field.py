@@ -123,6 +123,10 @@ def test_replay_files_load_and_match_truth(replay, fm):
     assert not np.any((ts >= 0.2) & (ts < 0.4)) and len(ts) == 3  # 16 frames = 0.53 s -> clouds at 0, 0.1, 0.4, 0.5 minus ...
     cloud = read_cloud(out / "clouds" / times[0][0])
     assert cloud.points.shape[0] > 3000 and cloud.intensity is not None
+    o3d = pytest.importorskip("open3d")
+    t = o3d.t.io.read_point_cloud(str(out / "clouds" / times[0][0]))
+    np.testing.assert_array_equal(t.point.positions.numpy(), cloud.points)
+    np.testing.assert_array_equal(t.point.intensity.numpy().ravel(), cloud.intensity)
 
 
 def test_clouds_on_disk_hit_ground_or_robots(replay, fm):
