@@ -518,6 +518,11 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
     uv, valid, z = cam.project_from(T_cam_field, P)
     inimg = valid & cam.in_image(uv)
     landmark_px = {n: [float(uv[i, 0]), float(uv[i, 1])] for i, n in enumerate(names) if inimg[i]}
+    # landmarks hidden behind the field solid or a structure (a person could not click them)
+    dvec = P - rig.T_field_cam[:3, 3]
+    dist = np.linalg.norm(dvec, axis=1)
+    t_hit, _ = raycast(field_model, scene_boxes(field_model), rig.T_field_cam[:3, 3][None], dvec / dist[:, None])
+    hidden = [n for i, n in enumerate(names) if inimg[i] and np.isfinite(t_hit[i]) and t_hit[i] < dist[i] - 0.05]
 
     # camera frames
     n = config.frames
@@ -604,6 +609,7 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
         "T_field_cam0": rig.T_field_cam.tolist(),
         "T_field_lidar0": rig.T_field_lidar.tolist(),
         "landmark_pixels": landmark_px,
+        "landmarks_hidden": hidden,
         "landmarks_field": {k: v.tolist() for k, v in field_model.landmarks.items()},
         "robots": [r.to_dict() for r in robots],
         "noise": {"lidar_range_sigma_m": config.lidar_range_sigma, "det_jitter_px": config.det_jitter_px, "det_dropout": config.det_dropout, "image_jpeg_quality": config.jpeg_quality},
