@@ -109,7 +109,7 @@ def _refine(camera: Camera, x0: np.ndarray, P: np.ndarray, uv: np.ndarray) -> tu
     from scipy.optimize import least_squares
 
     def fun(x):
-        u, valid = _project(camera, x, P)
+        u, _ = _project(camera, x, P)  # a point behind the camera has NaN pixels -> a large finite residual
         r = (u - uv).ravel()
         return np.where(np.isfinite(r), r, 1e6)
 

@@ -515,7 +515,7 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
     # landmarks' true pixels
     names = list(field_model.landmarks)
     P = field_model.landmark_array(names)
-    uv, valid, z = cam.project_from(T_cam_field, P)
+    uv, valid, _ = cam.project_from(T_cam_field, P)
     inimg = valid & cam.in_image(uv)
     landmark_px = {n: [float(uv[i, 0]), float(uv[i, 1])] for i, n in enumerate(names) if inimg[i]}
     # landmarks hidden behind the field solid or a structure (a person could not click them)
@@ -541,6 +541,8 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
             robots_f = SceneBoxes(boxes_f.center[ns:], boxes_f.size[ns:], boxes_f.yaw[ns:], boxes_f.names[ns:], boxes_f.kinds[ns:], boxes_f.colors[ns:])
             img = render_frame(field_model, rig, background, robots_f, config.image_scale)
             ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(config.jpeg_quality)])
+            if not ok:
+                raise RuntimeError(f"JPEG encoding failed for frame {f}")
             (out / "images" / fname).write_bytes(buf.tobytes())
             img_times.append((fname, t_img[f]))
         rob_truth, dets = [], []
