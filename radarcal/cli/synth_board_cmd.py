@@ -46,7 +46,7 @@ def synth_board(
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed -> bit-identical files)."),
     coverage: str = typer.Option("full", "--coverage", help="full | poor (board kept in the upper-left of the image)."),
     bad_view: bool = typer.Option(False, "--bad-view", help="One view with a bowed (non-flat) pattern: an outlier."),
-    bad_mm: float = typer.Option(None, "--bad-mm", help="Bow of the bad view in mm (default 0.3 x square)."),
+    bad_px: float = typer.Option(1.5, "--bad-px", help="Largest corner displacement of the bad view in px."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Render a calibration-target image set with known camera, poses and corner pixels."""
@@ -87,7 +87,7 @@ def synth_board(
     try:
         truth = write_board_set(out_dir, camera, spec, n_views=views, seed=seed, settings=settings, coverage=coverage,
                                 n_partial=partial, n_blank=blank, n_corrupt=corrupt, bad_view=bad_view,
-                                bad_amplitude=None if bad_mm is None else bad_mm / 1000.0, command=command_line(), progress=prog)
+                                bad_px=bad_px, command=command_line(), progress=prog)
     except ValueError as e:
         raise InputError(out_dir, str(e)) from None
     except OSError as e:

@@ -35,6 +35,7 @@ __all__ = [
     "board_object_points",
     "default_camera",
     "bow_warp",
+    "bad_view_amplitude",
     "plan_views",
     "render_board",
     "render_blank",
@@ -377,6 +378,17 @@ def bow_warp(spec: BoardSpec, amplitude: float) -> "callable":
     return d
 
 
+def bad_view_amplitude(camera: Camera, spec: BoardSpec, T_cam_board: np.ndarray, max_px: float) -> float:
+    """The :func:`bow_warp` amplitude (metres) that moves this view's corners by at most ``max_px`` pixels."""
+    uv, _ = board_truth_pixels(camera, spec, T_cam_board)
+    amp = 0.01 * spec.square
+    for _ in range(3):  # displacement is nearly linear in the amplitude
+        uv_a, _ = board_truth_pixels(camera, spec, T_cam_board, warp=bow_warp(spec, amp))
+        disp = float(np.nanmax(np.linalg.norm(uv_a - uv, axis=1)))
+        amp *= max_px / max(disp, 1e-12)
+    return amp
+
+
 def _invert_warp(warp, X: np.ndarray, Y: np.ndarray, iterations: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Pattern coordinates (c) whose printed point appears at (X, Y): solve c + d(c) = (X, Y) by fixed point."""
     cx, cy = X.copy(), Y.copy()
@@ -688,8 +700,9 @@ def plan_views(camera: Camera, spec: BoardSpec, n_views: int, rng: np.random.Gen
                 cell_uv = cell_uv * (1 - shrink) + 0.5 * shrink * rng.uniform(0.6, 1.4, 2)
                 centre = cell_uv * [w, h]
                 size = rng.uniform(0.3, 0.75) * (1 - 0.4 * shrink)
-                tilt = max_tilt * (1 - 0.6 * shrink)
-                tx, ty = rng.uniform(-tilt, tilt, 2)
+                tilt = rng.uniform(0.2, 1.0) * max_tilt * (1 - 0.6 * shrink)
+                phi = rng.uniform(0, 2 * np.pi)
+                tx, ty = tilt * np.cos(phi), tilt * np.sin(phi)
                 roll = rng.uniform(-0.26, 0.26)
             dist = f * board_diag / (size * diag)
             if camera.model == "fisheye":
@@ -719,13 +732,13 @@ def _nan_to_none(a: np.ndarray) -> list:
 
 def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec, n_views: int = 25, seed: int = 0,
                     settings: RenderSettings = RenderSettings(), coverage: str = "full", n_partial: int = 2,
-                    n_blank: int = 2, n_corrupt: int = 1, bad_view: bool = False, bad_amplitude: float | None = None,
+                    n_blank: int = 2, n_corrupt: int = 1, bad_view: bool = False, bad_px: float = 1.5,
                     command: str = "", progress=None) -> dict:
     """Write ``n_views`` board PNGs (+ blank and corrupt files) and ``truth.json`` into ``out_dir``; return the truth.
 
     Deterministic: the same arguments give bit-identical files. The corrupt file is a rendered board PNG
-    truncated to a third of its bytes. ``bad_view`` bows the printed pattern of one view by ``bad_amplitude``
-    metres (default 0.3 square) so its corners are inconsistent with a flat board.
+    truncated to a third of its bytes. ``bad_view`` bows the printed pattern of one view (see :func:`bow_warp`) so
+    that its corners sit up to ``bad_px`` pixels away from where a flat board would put them.
     """
     import cv2
 
@@ -742,7 +755,6 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     all_views = views + [BoardView("blank", None, float(rng.uniform(0.9, 1.06))) for _ in range(n_blank)] + extra_corrupt
     order = rng.permutation(len(all_views))
     renderer = BoardRenderer(camera, spec, settings)
-    amplitude = 0.3 * spec.square if bad_amplitude is None else float(bad_amplitude)
     obj = board_object_points(spec)
     entries = []
     iterator = range(len(order)) if progress is None else progress(range(len(order)))
@@ -752,7 +764,10 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
         name = f"img_{i:03d}.png"
         entry: dict = {"file": name, "kind": view.kind, "has_board": view.T_cam_board is not None,
                        "readable": view.kind != "corrupt", "gain": round(view.gain, 6)}
-        warp = bow_warp(spec, amplitude) if view.kind == "bad" else None
+        warp = None
+        if view.kind == "bad":
+            amplitude = bad_view_amplitude(camera, spec, view.T_cam_board, bad_px)
+            warp = bow_warp(spec, amplitude)
         if view.T_cam_board is None:
             img = render_blank(renderer, vrng)
             entry.update(T_cam_board=None, corners_uv=None, visible=None, corner_ids=[], n_visible=0)
@@ -764,7 +779,8 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
             if warp is not None:
                 uv_a, _ = board_truth_pixels(camera, spec, view.T_cam_board, warp=warp)
                 entry["corners_uv_actual"] = _nan_to_none(uv_a)
-                entry["bad_reason"] = f"printed pattern bowed by {amplitude * 1000:.2f} mm along y (not flat)"
+                entry["bad_reason"] = f"printed pattern bowed by {amplitude * 1000:.3f} mm along y (not flat)"
+                entry["bad_bow_m"] = amplitude
                 entry["bad_displacement_px_max"] = round(float(np.nanmax(np.linalg.norm(uv_a - uv, axis=1))), 4)
         ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 3])
         data = buf.tobytes()
