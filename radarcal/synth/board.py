@@ -274,14 +274,14 @@ class RenderSettings:
 
 @dataclass
 class _RayGrid:
-    xy: np.ndarray  # (h, w, 2) undistorted normalised coordinates of pixel centres
-    dxy_du: np.ndarray  # (h, w, 2)
-    dxy_dv: np.ndarray  # (h, w, 2)
-    valid: np.ndarray  # (h, w) bool: exact unprojection, neighbours valid too
+    rays: np.ndarray  # (h, w, 3) ray of each pixel centre (pinhole: (x, y, 1); fisheye: unit vector, may look backwards)
+    drays_du: np.ndarray  # (h, w, 3) d ray / d u (per pixel)
+    drays_dv: np.ndarray  # (h, w, 3)
+    valid: np.ndarray  # (h, w) bool: exact ray, neighbours valid too
     lens: np.ndarray  # (h, w) bool: inside the lens' image circle (all True for pinhole)
 
 
-def _unproject_grid(camera: Camera, step: int = 8, tol: float = 1e-13, max_iter: int = 40) -> tuple[np.ndarray, np.ndarray]:
+def _unproject_grid(camera: Camera, step: int = 8, tol: float = 1e-13, max_iter: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """Undistorted normalised coordinates (h, w, 2) of every pixel centre and a convergence mask (h, w).
 
     ``Camera.unproject`` (exact) on a coarse grid every ``step`` px, bilinear interpolation to every pixel, then
@@ -312,54 +312,72 @@ def _unproject_grid(camera: Camera, step: int = 8, tol: float = 1e-13, max_iter:
     Kinv = np.linalg.inv(camera.K)
     xyd = uv @ Kinv[:2, :2].T + Kinv[:2, 2]
     active = np.arange(len(xy))
-    if camera.model == "fisheye":  # beyond theta = 89 deg there is no finite normalised point to find
-        th = np.radians(89.0)
-        d, t2 = camera.dist, th * th
-        theta_d = th * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
-        active = active[np.linalg.norm(xyd, axis=1) < theta_d]
-    ok = np.zeros(len(xy), bool)
-    last = np.full(len(xy), np.inf)
-    for it in range(max_iter):
-        with np.errstate(all="ignore"):
-            f = camera.distort(xy[active]) - xyd[active]
-            err = np.abs(f).max(axis=1)
-            done = err < tol
-            ok[active[done]] = True
-            # drop converged pixels and, after a few steps, those that stopped improving (they never will)
-            keep = ~done & np.isfinite(err) & ((it < 4) | (err < 0.7 * last[active]))
-            last[active] = err
-            active, f = active[keep], f[keep]
-            if not active.size:
+    sub_xy, sub_xyd, sub_J = xy[active], xyd[active], J[active]
+    with np.errstate(all="ignore"):
+        for _ in range(max_iter):
+            f = camera.distort(sub_xy) - sub_xyd
+            if not np.nanmax(np.abs(f), initial=0.0) >= tol:
                 break
-            xy[active] -= np.einsum("nij,nj->ni", J[active], f)
+            sub_xy -= np.einsum("nij,nj->ni", sub_J, f)
+        err = np.abs(camera.distort(sub_xy) - sub_xyd).max(axis=1)
+    ok = np.zeros(len(xy), bool)
+    ok[active] = err < 1e-11
+    xy[active] = sub_xy
     return xy.reshape(h, w, 2), ok.reshape(h, w)
+
+
+def _fisheye_rays(camera: Camera, max_theta: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unit rays (h, w, 3) of an equidistant fisheye for every pixel, also beyond 90 deg, and a validity mask.
+
+    ``Camera.unproject`` goes through normalised coordinates (z = 1) and so stops short of 90 deg; a 190 deg lens
+    needs the polar form: theta from theta_d = |K^-1 uv| by Newton on theta (1 + k1 theta^2 + ... + k4 theta^8),
+    ray = (sin theta * xyd / theta_d, cos theta). Agrees with ``Camera.project`` wherever that is defined.
+    """
+    w, h = camera.image_size
+    u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
+    Kinv = np.linalg.inv(camera.K)
+    xyd = np.stack([u, v], axis=-1) @ Kinv[:2, :2].T + Kinv[:2, 2]
+    td = np.linalg.norm(xyd, axis=-1)
+    k1, k2, k3, k4 = camera.dist
+    th = td.copy()
+    for _ in range(30):
+        t2 = th * th
+        g = th * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - td
+        dg = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+        th = th - g / np.where(np.abs(dg) > 1e-9, dg, 1e-9)
+    t2 = th * th
+    g = th * (1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))) - td
+    dg = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+    ok = (np.abs(g) < 1e-12) & (dg > 0) & (th >= 0) & (th <= max_theta)
+    scale = np.where(td > 1e-15, np.sin(th) / np.where(td > 1e-15, td, 1.0), 1.0)
+    rays = np.concatenate([xyd * scale[..., None], np.cos(th)[..., None]], axis=-1)
+    return np.where(ok[..., None], rays, 0.0), ok
 
 
 def _ray_grid(camera: Camera, fisheye_fov_deg: float) -> _RayGrid:
     w, h = camera.image_size
-    xy, ok = _unproject_grid(camera)
-    if camera.model == "fisheye":  # equidistant normalised coordinates only reach theta < 90 deg
-        ok &= np.linalg.norm(xy, axis=2) < np.tan(np.radians(89.0))
-    xy = np.where(ok[..., None], xy, 0.0)
     lens = np.ones((h, w), bool)
     if camera.model == "fisheye":
+        th = np.radians(fisheye_fov_deg / 2)
+        rays, ok = _fisheye_rays(camera, th + np.radians(3.0))
+        d, t2 = camera.dist, th * th
+        theta_d = th * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
         u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
         Kinv = np.linalg.inv(camera.K)
-        xyd = np.stack([u.ravel(), v.ravel()], axis=1) @ Kinv[:2, :2].T + Kinv[:2, 2]
-        th = np.radians(fisheye_fov_deg / 2)
-        d = camera.dist
-        t2 = th * th
-        theta_d = th * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
-        lens = (np.linalg.norm(xyd, axis=1) <= theta_d).reshape(h, w)
+        lens = np.linalg.norm(np.stack([u, v], axis=-1) @ Kinv[:2, :2].T + Kinv[:2, 2], axis=-1) <= theta_d
+    else:
+        xy, ok = _unproject_grid(camera)
+        xy = np.where(ok[..., None], xy, 0.0)
+        rays = np.concatenate([xy, np.ones((h, w, 1))], axis=-1)
     # central differences (one-sided at the border); a pixel is usable only when its neighbours are valid too
-    dxy_du = np.gradient(xy, axis=1)
-    dxy_dv = np.gradient(xy, axis=0)
+    drays_du = np.gradient(rays, axis=1)
+    drays_dv = np.gradient(rays, axis=0)
     good = ok.copy()
     good[:, 1:] &= ok[:, :-1]
     good[:, :-1] &= ok[:, 1:]
     good[1:, :] &= ok[:-1, :]
     good[:-1, :] &= ok[1:, :]
-    return _RayGrid(xy, dxy_du, dxy_dv, good, lens)
+    return _RayGrid(rays, drays_du, drays_dv, good, lens)
 
 
 def bow_warp(spec: BoardSpec, amplitude: float) -> "callable":
@@ -451,14 +469,13 @@ class BoardRenderer:
         R, t = T[:3, :3], T[:3, 3]
         H = np.column_stack([R[:, 0], R[:, 1], t])  # normalised image point ~ H @ [X, Y, 1]
         Hinv = np.linalg.inv(H)
-        n = R[:, 2]
-        side = np.sign(n @ t)  # the ray (x, y, 1) hits the plane in front iff sign(n . ray) == side
 
-        def sample(xs, ys, valid):
-            q0 = Hinv[0, 0] * xs + Hinv[0, 1] * ys + Hinv[0, 2]
-            q1 = Hinv[1, 0] * xs + Hinv[1, 1] * ys + Hinv[1, 2]
-            q2 = Hinv[2, 0] * xs + Hinv[2, 1] * ys + Hinv[2, 2]
-            front = valid & ((n[0] * xs + n[1] * ys + n[2]) * side > 0) & (np.abs(q2) > 1e-15)
+        def sample(rx, ry, rz, valid):
+            # ray d ~ lambda H [X, Y, 1]  =>  Hinv d = lambda [X, Y, 1]; the board is hit in front iff lambda > 0
+            q0 = Hinv[0, 0] * rx + Hinv[0, 1] * ry + Hinv[0, 2] * rz
+            q1 = Hinv[1, 0] * rx + Hinv[1, 1] * ry + Hinv[1, 2] * rz
+            q2 = Hinv[2, 0] * rx + Hinv[2, 1] * ry + Hinv[2, 2] * rz
+            front = valid & (q2 > 1e-12)
             with np.errstate(divide="ignore", invalid="ignore"):
                 X = np.where(front, q0 / np.where(front, q2, 1.0), np.inf)
                 Y = np.where(front, q1 / np.where(front, q2, 1.0), np.inf)
@@ -468,7 +485,7 @@ class BoardRenderer:
             return _reflectance(self.spec, self._texture, X, Y)
 
         # pass 1: one sample at each pixel centre
-        centre = sample(g.xy[..., 0], g.xy[..., 1], g.valid)
+        centre = sample(g.rays[..., 0], g.rays[..., 1], g.rays[..., 2], g.valid)
         refl = np.maximum(centre, 0.0)
         frac = (centre >= 0).astype(np.float32)
         # pass 2: supersample the pixels whose 3x3 neighbourhood is not uniform
@@ -481,15 +498,16 @@ class BoardRenderer:
         rows, cols = np.nonzero(busy)
         S = max(1, int(self.settings.supersample))
         if rows.size and S > 1:
-            x, y = g.xy[rows, cols, 0], g.xy[rows, cols, 1]
-            xu, yu = g.dxy_du[rows, cols, 0], g.dxy_du[rows, cols, 1]
-            xv, yv = g.dxy_dv[rows, cols, 0], g.dxy_dv[rows, cols, 1]
+            r0 = g.rays[rows, cols]
+            ru = g.drays_du[rows, cols]
+            rv = g.drays_dv[rows, cols]
             val = g.valid[rows, cols]
             acc = np.zeros(rows.size, np.float32)
             hit = np.zeros(rows.size, np.float32)
             offsets = _sample_offsets(S)
             for du, dv in offsets:
-                r = sample(x + xu * du + xv * dv, y + yu * du + yv * dv, val)
+                ray = r0 + ru * du + rv * dv
+                r = sample(ray[:, 0], ray[:, 1], ray[:, 2], val)
                 acc += np.maximum(r, 0.0)
                 hit += r >= 0
             refl[rows, cols] = acc / len(offsets)
@@ -566,7 +584,7 @@ def board_truth_pixels(camera: Camera, spec: BoardSpec, T_cam_board: np.ndarray,
     """True pixels (N,2) of the board's inner corners (NaN when behind the camera) and their visibility mask.
 
     With ``warp`` (see :func:`bow_warp`) the corners are where the defective print really puts them.
-    Visible = in front of the camera, inside the image by ``margin`` px (and inside a fisheye's valid field).
+    Visible = in front of the camera (z > 0, so < 90 deg off-axis for a fisheye) and inside the image by ``margin`` px.
     """
     p = board_object_points(spec)
     if warp is not None:
@@ -575,9 +593,6 @@ def board_truth_pixels(camera: Camera, spec: BoardSpec, T_cam_board: np.ndarray,
     uv, valid, z = camera.project_from(T_cam_board, p)
     uv = np.where(valid[:, None], uv, np.nan)
     vis = valid & camera.in_image(uv, margin)
-    if camera.model == "fisheye":
-        p_cam = p @ np.asarray(T_cam_board)[:3, :3].T + np.asarray(T_cam_board)[:3, 3]
-        vis &= z / np.linalg.norm(p_cam, axis=1) > np.cos(np.radians(85.0))
     return uv, vis
 
 

@@ -150,6 +150,25 @@ def test_charuco_layouts_detect_only_with_the_right_flag(legacy):
     assert _rms(np.concatenate(errors), 0 * np.concatenate(errors)) < 0.15
 
 
+def test_ray_grids_agree_with_camera_project():
+    from radarcal.synth.board import _ray_grid
+
+    for model in ("pinhole8", "fisheye"):
+        cam = default_camera(model, (320, 256))
+        g = _ray_grid(cam, 190.0)
+        rays = g.rays.reshape(-1, 3)
+        u, v = np.meshgrid(np.arange(320.0), np.arange(256.0))
+        uv = np.stack([u.ravel(), v.ravel()], axis=1)
+        norm = np.maximum(np.linalg.norm(rays, axis=1), 1e-300)
+        front = g.valid.ravel() & (rays[:, 2] / norm > np.cos(np.radians(89.5)))
+        back, ok = cam.project(rays[front])
+        assert ok.all() and np.abs(back - uv[front]).max() < 1e-6
+        if model == "fisheye":  # the 190 deg image circle is fully usable, including the rays behind the camera
+            assert g.valid[g.lens].all() and (rays[g.lens.ravel(), 2] < 0).any()
+        else:
+            assert g.valid.all()
+
+
 def test_fisheye_corners_match_truth():
     cam = default_camera("fisheye", (1280, 1024))
     rng = np.random.default_rng(5)
