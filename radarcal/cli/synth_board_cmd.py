@@ -36,7 +36,7 @@ def synth_board(
     model: str = typer.Option("pinhole5", "--model", help="pinhole5 | pinhole8 | fisheye (default camera for the size)."),
     camera_file: Path = typer.Option(None, "--camera", help="Use these intrinsics instead (ROS/OpenCV/Kalibr/radarcal file)."),
     views: int = typer.Option(25, "--views", help="Images showing the board (including partial and bad views)."),
-    partial: int = typer.Option(2, "--partial", help="How many of the views show the board partly outside the image."),
+    partial: int = typer.Option(None, "--partial", help="How many of the views show the board partly outside the image (default 8 % of --views: 2 of 25)."),
     blank: int = typer.Option(2, "--blank", help="Extra frames without a board."),
     corrupt: int = typer.Option(1, "--corrupt", help="Extra truncated (unreadable) PNG files."),
     noise: float = typer.Option(0.5, "--noise", help="Sensor noise sigma in grey levels (0..255 scale)."),
@@ -58,6 +58,8 @@ def synth_board(
         raise InputError("--model", f"expected one of {', '.join(_MODELS)}, got {model!r}")
     if coverage not in ("full", "poor"):
         raise InputError("--coverage", f"expected full or poor, got {coverage!r}")
+    if partial is None:
+        partial = int(round(0.08 * views))
     for name, value in (("--views", views), ("--partial", partial), ("--blank", blank), ("--corrupt", corrupt)):
         if value < 0:
             raise InputError(name, f"must be >= 0, got {value}")
@@ -83,11 +85,13 @@ def synth_board(
     def prog(it):
         return progress(it, "rendering", total=len(it))
 
+    # the command as typed, with the output folder replaced so that the same call elsewhere gives the same bytes
+    command = " ".join("OUT_DIR" if a == str(out_dir) else a for a in command_line().split(" "))
     t0 = time.perf_counter()
     try:
         truth = write_board_set(out_dir, camera, spec, n_views=views, seed=seed, settings=settings, coverage=coverage,
                                 n_partial=partial, n_blank=blank, n_corrupt=corrupt, bad_view=bad_view,
-                                bad_px=bad_px, command=command_line(), progress=prog)
+                                bad_px=bad_px, command=command, progress=prog)
     except ValueError as e:
         raise InputError(out_dir, str(e)) from None
     except OSError as e:
