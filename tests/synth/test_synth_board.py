@@ -202,6 +202,24 @@ def test_bad_view_is_displaced_as_recorded():
     assert _rms(found, uv_bad) < 0.1 < 0.5 < _rms(found, uv)
 
 
+def test_view_planner_coverage_full_vs_poor():
+    cam = default_camera("pinhole5", (1280, 1024))
+    pts = {}
+    for coverage in ("full", "poor"):
+        views = plan_views(cam, CHESS, 25, np.random.default_rng(0), coverage=coverage, n_partial=0)
+        uv = np.concatenate([board_truth_pixels(cam, CHESS, v.T_cam_board)[0] for v in views])
+        pts[coverage] = uv / cam.image_size
+        tilts = [np.degrees(np.arccos(v.T_cam_board[:3, 2] @ (v.T_cam_board[:3, 3] / np.linalg.norm(v.T_cam_board[:3, 3])))) for v in views]
+        if coverage == "full":
+            assert max(tilts) > 35  # strongly tilted views are present
+    full, poor = pts["full"], pts["poor"]
+    # full: corners reach every image quadrant and near all four borders; poor: only the upper-left part
+    assert full.min(axis=0).max() < 0.12 and full.max(axis=0).min() > 0.88
+    assert poor.max(axis=0).max() < 0.62
+    hist_full = np.histogram2d(full[:, 0], full[:, 1], bins=4, range=[[0, 1], [0, 1]])[0]
+    assert (hist_full > 0).all()
+
+
 # --- the set writer ----------------------------------------------------------------------------------------------------
 def _small_set(path, seed=3, **kw):
     args = dict(n_views=4, seed=seed, n_partial=1, n_blank=1, n_corrupt=1, bad_view=True)
@@ -276,3 +294,18 @@ def test_cli_writes_a_set_and_rejects_bad_input(tmp_path, capsys):
     assert main(["synth", "board", str(tmp_path / "x"), "--size", "big"]) == 2
     assert main(["synth", "board", str(tmp_path / "x"), "--board", "charuco", "--marker", "0.05"]) == 2
     assert "error: --" in capsys.readouterr().err
+
+
+def test_committed_sample_regenerates_bit_for_bit(tmp_path):
+    """datasets/synth_board_640 (made by datasets/regenerate_synth_board.sh) comes back byte-identical from its seed."""
+    from pathlib import Path
+
+    sample = Path(__file__).resolve().parents[2] / "datasets" / "synth_board_640"
+    if not (sample / "truth.json").is_file():
+        pytest.skip("datasets/synth_board_640 not present")
+    truth = json.loads((sample / "truth.json").read_text())
+    write_board_set(tmp_path, Camera.from_dict(truth["camera"]), BoardSpec.from_dict(truth["board"]), n_views=6, seed=0,
+                    settings=RenderSettings(noise_sigma=1.0, blur_sigma=0.6), n_partial=1, n_blank=1, n_corrupt=1, bad_view=True,
+                    command=truth["command"])
+    for name in truth["files"]["all"] + ["truth.json"]:
+        assert (tmp_path / name).read_bytes() == (sample / name).read_bytes(), name
