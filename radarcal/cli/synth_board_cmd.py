@@ -47,6 +47,7 @@ def synth_board(
     coverage: str = typer.Option("full", "--coverage", help="full | poor (board kept in the upper-left of the image)."),
     bad_view: bool = typer.Option(False, "--bad-view", help="One view with a bowed (non-flat) pattern: an outlier."),
     bad_px: float = typer.Option(1.5, "--bad-px", help="Largest corner displacement of the bad view in px."),
+    blurred: int = typer.Option(0, "--blurred", help="How many of the views get a motion streak (1-1.6 % of the image width)."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Render a calibration-target image set with known camera, poses and corner pixels."""
@@ -60,7 +61,7 @@ def synth_board(
         raise InputError("--coverage", f"expected full or poor, got {coverage!r}")
     if partial is None:
         partial = int(round(0.08 * views))
-    for name, value in (("--views", views), ("--partial", partial), ("--blank", blank), ("--corrupt", corrupt)):
+    for name, value in (("--views", views), ("--partial", partial), ("--blank", blank), ("--corrupt", corrupt), ("--blurred", blurred)):
         if value < 0:
             raise InputError(name, f"must be >= 0, got {value}")
     if partial > views:
@@ -91,7 +92,7 @@ def synth_board(
     try:
         truth = write_board_set(out_dir, camera, spec, n_views=views, seed=seed, settings=settings, coverage=coverage,
                                 n_partial=partial, n_blank=blank, n_corrupt=corrupt, bad_view=bad_view,
-                                bad_px=bad_px, command=command, progress=prog)
+                                bad_px=bad_px, n_blurred=blurred, command=command, progress=prog)
     except ValueError as e:
         raise InputError(out_dir, str(e)) from None
     except OSError as e:
@@ -120,9 +121,9 @@ def synth_board(
         typer.echo(f"  board: {b['type']}{' (legacy)' if b['legacy'] else ''} {shape}, square {b['square'] * 1000:g} mm"
                    + (f", marker {b['marker'] * 1000:g} mm {b['dictionary']}" if b["type"] == "charuco" else ""))
         f = s["files"]
-        typer.echo(f"  views: {len(f['full'])} full, {len(f['partial'])} partial, {len(f['bad'])} bad, "
+        typer.echo(f"  views: {len(f['full'])} full, {len(f['partial'])} partial, {len(f['bad'])} bad, {len(f['blurred'])} blurred, "
                    f"{len(f['blank'])} blank, {len(f['corrupt'])} corrupt")
-        for kind in ("partial", "bad", "blank", "corrupt"):
+        for kind in ("partial", "bad", "blurred", "blank", "corrupt"):
             if f[kind]:
                 typer.echo(f"  {kind}: {', '.join(f[kind])}")
 

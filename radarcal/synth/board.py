@@ -464,7 +464,6 @@ class BoardRenderer:
         the paper.
         """
         g = self.grid
-        h, w = g.valid.shape
         T = np.asarray(T_cam_board, float)
         R, t = T[:3, :3], T[:3, 3]
         H = np.column_stack([R[:, 0], R[:, 1], t])  # normalised image point ~ H @ [X, Y, 1]
@@ -529,8 +528,12 @@ class BoardRenderer:
         return img.astype(np.float32)
 
     def finish(self, radiance: np.ndarray, rng: np.random.Generator, blur_sigma: float | None = None,
-               motion_blur_px: float = 0.0) -> np.ndarray:
-        """Optics and sensor: blur, vignetting, noise, 8-bit rounding -> uint8 (h, w)."""
+               motion_blur_px: float = 0.0, motion_angle: float = 0.0) -> np.ndarray:
+        """Optics and sensor: [motion blur], blur, vignetting, noise, 8-bit rounding -> uint8 (h, w).
+
+        ``motion_blur_px``: length of a straight motion streak at ``motion_angle`` (radians from the image x axis),
+        symmetric about the pixel so that it smears but does not shift the corners.
+        """
         import cv2
 
         s = self.settings
@@ -538,9 +541,12 @@ class BoardRenderer:
         sigma = s.blur_sigma if blur_sigma is None else blur_sigma
         if motion_blur_px > 0:
             L = int(np.ceil(motion_blur_px)) | 1
+            t = np.linspace(-0.5, 0.5, 8 * L) * motion_blur_px
             kern = np.zeros((L, L), np.float32)
-            kern[L // 2, :] = 1.0 / L
-            img = cv2.filter2D(img, -1, kern, borderType=cv2.BORDER_REFLECT)
+            np.add.at(kern, (np.rint(L // 2 + t * np.sin(motion_angle)).astype(int),
+                             np.rint(L // 2 + t * np.cos(motion_angle)).astype(int)), 1.0)
+            kern = 0.5 * (kern + kern[::-1, ::-1])  # exactly point-symmetric: no shift
+            img = cv2.filter2D(img, -1, kern / kern.sum(), borderType=cv2.BORDER_REFLECT)
         if sigma > 0:
             img = cv2.GaussianBlur(img, (0, 0), sigmaX=sigma, sigmaY=sigma, borderType=cv2.BORDER_REFLECT)
         if s.vignetting:
@@ -555,9 +561,9 @@ class BoardRenderer:
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
     def render(self, T_cam_board: np.ndarray | None, rng: np.random.Generator, warp=None, gain: float = 1.0,
-               motion_blur_px: float = 0.0) -> np.ndarray:
+               motion_blur_px: float = 0.0, motion_angle: float = 0.0) -> np.ndarray:
         """Full image (uint8, h x w) of the board at ``T_cam_board`` (None: no board in view)."""
-        return self.finish(self.radiance(T_cam_board, warp, gain), rng, motion_blur_px=motion_blur_px)
+        return self.finish(self.radiance(T_cam_board, warp, gain), rng, motion_blur_px=motion_blur_px, motion_angle=motion_angle)
 
 
 def render_board(camera: Camera, spec: BoardSpec, T_cam_board: np.ndarray, settings: RenderSettings = RenderSettings(),
@@ -601,7 +607,7 @@ def board_truth_pixels(camera: Camera, spec: BoardSpec, T_cam_board: np.ndarray,
 # ------------------------------------------------------------------------------------------------------------------
 @dataclass
 class BoardView:
-    """One planned image of a set: kind in full | partial | bad | blank | corrupt."""
+    """One planned image of a set: kind in full | partial | bad | blurred | blank | corrupt."""
 
     kind: str
     T_cam_board: np.ndarray | None
@@ -667,8 +673,9 @@ def _check_full(camera: Camera, spec: BoardSpec, T: np.ndarray, min_square_px: f
 
 
 def plan_views(camera: Camera, spec: BoardSpec, n_views: int, rng: np.random.Generator, coverage: str = "full",
-               n_partial: int = 2, n_bad: int = 0, max_tilt_deg: float = 45.0) -> list[BoardView]:
-    """Board poses for a set of ``n_views`` board images (``n_partial`` partly outside, ``n_bad`` outliers).
+               n_partial: int = 2, n_bad: int = 0, max_tilt_deg: float = 45.0, n_blurred: int = 0) -> list[BoardView]:
+    """Board poses for a set of ``n_views`` board images (``n_partial`` partly outside, ``n_bad`` outliers,
+    ``n_blurred`` to be rendered with motion blur; the last two are placed like full views).
 
     coverage ``"full"``: board centres stratified over the whole image, tilts up to ``max_tilt_deg`` about the
     board's x and y axes, sizes 30-75 % of the image diagonal. ``"poor"``: small, mildly tilted boards in the
@@ -683,7 +690,8 @@ def plan_views(camera: Camera, spec: BoardSpec, n_views: int, rng: np.random.Gen
     f = 0.5 * (camera.fx + camera.fy)
     n_partial = min(n_partial, n_views)
     n_bad = min(n_bad, n_views - n_partial)
-    kinds = ["partial"] * n_partial + ["bad"] * n_bad + ["full"] * (n_views - n_partial - n_bad)
+    n_blurred = min(n_blurred, n_views - n_partial - n_bad)
+    kinds = ["partial"] * n_partial + ["bad"] * n_bad + ["blurred"] * n_blurred + ["full"] * (n_views - n_partial - n_bad - n_blurred)
     kinds = [kinds[i] for i in rng.permutation(len(kinds))]
     # stratified centres for full views: a shuffled k x k grid of cells, jittered inside the cell
     k = max(2, int(np.ceil(np.sqrt(max(1, n_views)))))
@@ -748,12 +756,15 @@ def _nan_to_none(a: np.ndarray) -> list:
 def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec, n_views: int = 25, seed: int = 0,
                     settings: RenderSettings = RenderSettings(), coverage: str = "full", n_partial: int = 2,
                     n_blank: int = 2, n_corrupt: int = 1, bad_view: bool = False, bad_px: float = 1.5,
+                    n_blurred: int = 0, blur_streak: tuple[float, float] = (0.01, 0.016),
                     command: str = "", progress=None) -> dict:
     """Write ``n_views`` board PNGs (+ blank and corrupt files) and ``truth.json`` into ``out_dir``; return the truth.
 
     Deterministic: the same arguments give bit-identical files. The corrupt file is a rendered board PNG
     truncated to a third of its bytes. ``bad_view`` bows the printed pattern of one view (see :func:`bow_warp`) so
-    that its corners sit up to ``bad_px`` pixels away from where a flat board would put them.
+    that its corners sit up to ``bad_px`` pixels away from where a flat board would put them. ``n_blurred`` views get
+    a motion streak in a random direction, its length drawn from ``blur_streak`` x image width (12.8-20 px at 1280
+    px): symmetric, so the true corners do not move, but detections on such views are poor.
     """
     import cv2
 
@@ -762,7 +773,8 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     root = np.random.SeedSequence(int(seed))
     plan_seed, *view_seeds = root.spawn(1 + n_views + n_blank + n_corrupt)
     rng = np.random.default_rng(plan_seed)
-    views = plan_views(camera, spec, n_views, rng, coverage, n_partial=n_partial, n_bad=1 if bad_view else 0)
+    views = plan_views(camera, spec, n_views, rng, coverage, n_partial=n_partial, n_bad=1 if bad_view else 0,
+                       n_blurred=n_blurred)
     # corrupt files are rendered board views too (then truncated); blanks have no board
     extra_corrupt = plan_views(camera, spec, n_corrupt, rng, coverage, n_partial=0) if n_corrupt else []
     for v in extra_corrupt:
@@ -787,7 +799,12 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
             img = render_blank(renderer, vrng)
             entry.update(T_cam_board=None, corners_uv=None, visible=None, corner_ids=[], n_visible=0)
         else:
-            img = renderer.render(view.T_cam_board, vrng, warp=warp, gain=view.gain)
+            streak, angle = 0.0, 0.0
+            if view.kind == "blurred":
+                streak = float(vrng.uniform(*blur_streak)) * camera.width
+                angle = float(vrng.uniform(0, np.pi))
+                entry.update(motion_blur_px=round(streak, 4), motion_blur_angle_deg=round(np.degrees(angle), 4))
+            img = renderer.render(view.T_cam_board, vrng, warp=warp, gain=view.gain, motion_blur_px=streak, motion_angle=angle)
             uv, vis = board_truth_pixels(camera, spec, view.T_cam_board)
             entry.update(T_cam_board=np.round(view.T_cam_board, 12).tolist(), corners_uv=_nan_to_none(uv),
                          visible=vis.tolist(), corner_ids=np.nonzero(vis)[0].tolist(), n_visible=int(vis.sum()))
@@ -821,10 +838,11 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
         "coverage": coverage,
         "files": {
             "all": [e["file"] for e in entries],
-            "board": [e["file"] for e in entries if e["kind"] in ("full", "partial", "bad")],
+            "board": [e["file"] for e in entries if e["kind"] in ("full", "partial", "bad", "blurred")],
             "full": [e["file"] for e in entries if e["kind"] == "full"],
             "partial": [e["file"] for e in entries if e["kind"] == "partial"],
             "bad": [e["file"] for e in entries if e["kind"] == "bad"],
+            "blurred": [e["file"] for e in entries if e["kind"] == "blurred"],
             "blank": [e["file"] for e in entries if e["kind"] == "blank"],
             "corrupt": [e["file"] for e in entries if e["kind"] == "corrupt"],
         },

@@ -222,7 +222,7 @@ def test_view_planner_coverage_full_vs_poor():
 
 # --- the set writer ----------------------------------------------------------------------------------------------------
 def _small_set(path, seed=3, **kw):
-    args = dict(n_views=4, seed=seed, n_partial=1, n_blank=1, n_corrupt=1, bad_view=True)
+    args = dict(n_views=5, seed=seed, n_partial=1, n_blank=1, n_corrupt=1, bad_view=True, n_blurred=1)
     args.update(kw)
     return write_board_set(path, default_camera("pinhole5", (640, 480)), CHESS, settings=RenderSettings(noise_sigma=1.0), **args)
 
@@ -246,8 +246,9 @@ def test_truth_json_consistent_with_files(tmp_path):
     obj = np.asarray(truth["object_points"])
     np.testing.assert_allclose(obj, board_object_points(spec))
     files = truth["files"]
-    assert len(files["all"]) == 4 + 1 + 1 == len(truth["views"])
-    assert (len(files["partial"]), len(files["bad"]), len(files["blank"]), len(files["corrupt"])) == (1, 1, 1, 1)
+    assert len(files["all"]) == 5 + 1 + 1 == len(truth["views"])
+    assert [len(files[k]) for k in ("full", "partial", "bad", "blurred", "blank", "corrupt")] == [2, 1, 1, 1, 1, 1]
+    sharpness = {}
     assert sorted(p.name for p in tmp_path.glob("*.png")) == sorted(files["all"])
     for v in truth["views"]:
         path = tmp_path / v["file"]
@@ -273,10 +274,17 @@ def test_truth_json_consistent_with_files(tmp_path):
             assert 0.3 <= vis.mean() <= 0.8
         else:
             assert vis.all()
+            sharpness.setdefault(v["kind"], []).append(cv2.Laplacian(img, cv2.CV_64F).var())
+            if v["kind"] == "blurred":  # smeared by a symmetric streak (6.4-10.2 px at 640 px width): not shifted
+                assert 6.4 <= v["motion_blur_px"] <= 10.3
+                ok, found = cv2.findChessboardCornersSB(img, (9, 6))
+                assert not ok or np.abs(np.mean(_match_order(found.reshape(-1, 2), uv) - uv, axis=0)).max() < 0.3
+                continue
             found = _detect_chessboard(img, spec)
             assert found is not None
             target = np.asarray(v["corners_uv_actual"]) if v["kind"] == "bad" else uv
             assert _rms(_match_order(found, uv), target) < 0.1
+    assert max(sharpness["blurred"]) < 0.5 * min(sharpness["full"])
 
 
 def test_cli_writes_a_set_and_rejects_bad_input(tmp_path, capsys):
