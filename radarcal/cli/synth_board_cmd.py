@@ -34,6 +34,7 @@ def synth_board(
     legacy: bool = typer.Option(False, "--legacy", help="ChArUco: OpenCV's legacy (pre-4.6) layout."),
     size: str = typer.Option("1280x1024", "--size", help="Image size WIDTHxHEIGHT."),
     model: str = typer.Option("pinhole5", "--model", help="pinhole5 | pinhole8 | fisheye (default camera for the size)."),
+    fov: float = typer.Option(190.0, "--fov", help="Fisheye: field of view (deg) of the image circle (spans the image height)."),
     camera_file: Path = typer.Option(None, "--camera", help="Use these intrinsics instead (ROS/OpenCV/Kalibr/radarcal file)."),
     views: int = typer.Option(25, "--views", help="Images showing the board (including partial and bad views)."),
     partial: int = typer.Option(None, "--partial", help="How many of the views show the board partly outside the image (default 8 % of --views: 2 of 25)."),
@@ -73,7 +74,9 @@ def synth_board(
 
         camera, _fmt = import_camera(camera_file, None)
     else:
-        camera = default_camera(model, _parse_size(size))
+        if not (60.0 <= fov <= 270.0):
+            raise InputError("--fov", f"expected 60..270 degrees, got {fov:g}")
+        camera = default_camera(model, _parse_size(size), fisheye_fov_deg=fov)
     if board == "charuco" and marker is None:
         marker = 0.75 * square
     try:
@@ -81,7 +84,7 @@ def synth_board(
                          dictionary if board == "charuco" else None, legacy if board == "charuco" else False)
     except ValueError as e:
         raise InputError("--board", str(e)) from None
-    settings = RenderSettings(supersample=supersample, blur_sigma=blur, noise_sigma=noise, vignetting=vignetting)
+    settings = RenderSettings(supersample=supersample, blur_sigma=blur, noise_sigma=noise, vignetting=vignetting, fisheye_fov_deg=fov)
 
     def prog(it):
         return progress(it, "rendering", total=len(it))

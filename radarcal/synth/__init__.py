@@ -8,6 +8,7 @@ from radarcal.synth.board import (
     board_truth_pixels,
     default_camera,
     render_board,
+    load_board_truth,
     write_board_set,
 )
 
@@ -19,5 +20,6 @@ __all__ = [
     "board_truth_pixels",
     "default_camera",
     "render_board",
+    "load_board_truth",
     "write_board_set",
 ]

@@ -41,6 +41,8 @@ __all__ = [
     "render_blank",
     "board_truth_pixels",
     "write_board_set",
+    "load_board_truth",
+    "BoardTruth",
     "TRUTH_FORMAT",
 ]
 
@@ -75,6 +77,8 @@ class BoardSpec:
         problem = self.problem()
         if problem:
             raise ValueError(problem)
+        if self.margin is None:  # resolve the default so that equal boards compare equal
+            object.__setattr__(self, "margin", float(self.square))
 
     def problem(self) -> str | None:
         if self.kind not in _KINDS:
@@ -770,6 +774,9 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if (out / "truth.json").is_file():  # a previous set lives here: drop its images so no stale file survives
+        for old in out.glob("img_[0-9][0-9][0-9].png"):
+            old.unlink()
     root = np.random.SeedSequence(int(seed))
     plan_seed, *view_seeds = root.spawn(1 + n_views + n_blank + n_corrupt)
     rng = np.random.default_rng(plan_seed)
@@ -852,3 +859,38 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     tmp.write_text(json.dumps(truth, indent=1) + "\n")
     tmp.replace(out / "truth.json")
     return truth
+
+
+@dataclass
+class BoardTruth:
+    """A parsed ``truth.json`` of a board set (see docs/synth.md for the keys)."""
+
+    folder: Path
+    camera: Camera
+    spec: BoardSpec
+    object_points: np.ndarray  # (N, 3)
+    views: list[dict]  # as stored, plus numpy arrays: "uv" (N, 2; NaN = not projectable), "vis" (N,), "T" (4x4 or None)
+    raw: dict
+
+    def files(self, kind: str = "all") -> list[Path]:
+        """Paths of the files of one kind (all | board | full | partial | bad | blurred | blank | corrupt)."""
+        return [self.folder / f for f in self.raw["files"].get(kind, [])]
+
+
+def load_board_truth(path: str | os.PathLike) -> BoardTruth:
+    """Read a set's ``truth.json`` (path to the file or to its folder)."""
+    path = Path(path)
+    file = path / "truth.json" if path.is_dir() else path
+    raw = json.loads(file.read_text())
+    if raw.get("format") != TRUTH_FORMAT:
+        raise ValueError(f"{file}: not a {TRUTH_FORMAT} truth file (format {raw.get('format')!r})")
+    views = []
+    for v in raw["views"]:
+        v = dict(v)
+        if v.get("corners_uv") is not None:
+            v["uv"] = np.array([[np.nan if x is None else x for x in row] for row in v["corners_uv"]], float)
+            v["vis"] = np.asarray(v["visible"], bool)
+        v["T"] = None if v.get("T_cam_board") is None else np.asarray(v["T_cam_board"], float)
+        views.append(v)
+    return BoardTruth(file.parent, Camera.from_dict(raw["camera"]), BoardSpec.from_dict(raw["board"]),
+                      np.asarray(raw["object_points"], float), views, raw)

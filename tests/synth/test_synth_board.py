@@ -19,6 +19,7 @@ from radarcal.synth.board import (
     board_truth_pixels,
     bow_warp,
     default_camera,
+    load_board_truth,
     plan_views,
     write_board_set,
 )
@@ -105,9 +106,9 @@ def test_paper_area_and_centroid_match_projection(model):
 
 
 # --- detected corners vs truth ---------------------------------------------------------------------------------------
-@pytest.mark.parametrize("size", [(1280, 1024), (640, 480)])
-def test_chessboard_corners_subpixel(size):
-    cam = default_camera("pinhole5", size)
+@pytest.mark.parametrize("model,size", [("pinhole5", (1280, 1024)), ("pinhole5", (640, 480)), ("pinhole8", (640, 480))])
+def test_chessboard_corners_subpixel(model, size):
+    cam = default_camera(model, size)
     rng = np.random.default_rng(7)
     views = plan_views(cam, CHESS, 4, rng, n_partial=0)
     r = BoardRenderer(cam, CHESS, RenderSettings(noise_sigma=0.5, blur_sigma=0.6))
@@ -239,8 +240,12 @@ def test_set_is_deterministic(tmp_path):
 
 
 def test_truth_json_consistent_with_files(tmp_path):
+    (tmp_path / "img_042.png").write_bytes(b"stale")  # a file of an earlier, bigger set in the same folder
+    (tmp_path / "truth.json").write_text("{}")
     _small_set(tmp_path)
-    truth = json.loads((tmp_path / "truth.json").read_text())
+    loaded = load_board_truth(tmp_path)
+    truth = loaded.raw
+    assert loaded.spec == CHESS and [p.name for p in loaded.files("blank")] == truth["files"]["blank"]
     cam = Camera.from_dict(truth["camera"])
     spec = BoardSpec.from_dict(truth["board"])
     obj = np.asarray(truth["object_points"])
