@@ -97,7 +97,7 @@ def synth_board(
                                 n_partial=partial, n_blank=blank, n_corrupt=corrupt, bad_view=bad_view,
                                 bad_px=bad_px, n_blurred=blurred, command=command, progress=prog)
     except ValueError as e:
-        raise InputError(out_dir, str(e)) from None
+        raise InputError("--board/--size", str(e)) from None
     except OSError as e:
         raise InputError(out_dir, f"cannot write: {e.strerror or e}") from None
     elapsed = time.perf_counter() - t0

@@ -744,8 +744,9 @@ def plan_views(camera: Camera, spec: BoardSpec, n_views: int, rng: np.random.Gen
             elif _check_full(camera, spec, T, min_sq):
                 break
             T = None
-        if T is None:  # pragma: no cover - only for absurd camera/board combinations
-            raise ValueError(f"could not place the board for view {idx} ({kind}); board too large for this camera?")
+        if T is None:
+            raise ValueError(f"cannot place a {spec.corners_x}x{spec.corners_y}-corner board fully inside a {w}x{h} image "
+                             f"with corners >= {min_sq:g} px apart (view {idx}, {kind}): use a larger image or fewer corners")
         views.append(BoardView(kind, T, float(rng.uniform(0.9, 1.06))))
     return views
 

@@ -306,6 +306,7 @@ def test_cli_writes_a_set_and_rejects_bad_input(tmp_path, capsys):
     assert truth["board"]["type"] == "charuco" and len(truth["views"]) == 3
     assert main(["synth", "board", str(tmp_path / "x"), "--size", "big"]) == 2
     assert main(["synth", "board", str(tmp_path / "x"), "--board", "charuco", "--marker", "0.05"]) == 2
+    assert main(["synth", "board", str(tmp_path / "x"), "--cols", "30", "--rows", "20", "--size", "320x240"]) == 2
     assert "error: --" in capsys.readouterr().err
 
 
