@@ -1,18 +1,18 @@
 """Calibration-target images with known truth: chessboard and ChArUco rendered through a distorted camera.
 
-Pure numeric core (arrays in, arrays out; no printing, no file I/O except :func:`write_board_set`, which is the
-one writer). Rendering is by *inverse mapping*: every output pixel is unprojected through :class:`radarcal.camera.Camera`
+Pure numeric core (arrays in, arrays out; no printing, no file I/O except the set writer :func:`write_board_set`
+and its reader :func:`load_board_truth`). Rendering is by *inverse mapping*: every output pixel is unprojected through :class:`radarcal.camera.Camera`
 (radtan 5/8 or fisheye), the ray is intersected with the board plane and the board's reflectance is looked up there,
-averaged over ``supersample x supersample`` sub-pixel samples. Pixel centres are at integer coordinates, so pixel
-``(u, v)`` covers ``[u-0.5, u+0.5] x [v-0.5, v+0.5]`` and its sub-samples sit at ``u - 0.5 + (k + 0.5) / S``.
+averaged over sub-pixel samples. Pixel centres are at integer coordinates, so pixel ``(u, v)`` covers
+``[u-0.5, u+0.5] x [v-0.5, v+0.5]`` and its sub-samples are spread symmetrically over that square.
 
 Board frame (OpenCV's object-point convention): x along the columns, y along the rows, z into the board.
 Chessboard: origin at the first inner corner, ``cols x rows`` inner corners. ChArUco: origin at the board corner,
 ``cols x rows`` squares, corner ``id`` at ``((id % (cols-1) + 1) * square, (id // (cols-1) + 1) * square, 0)``.
 
-Speed: the per-camera ray grid (one exact unprojection per pixel plus its 2x2 Jacobian, used for the sub-samples
-by a first-order expansion whose error is < 1e-4 px) is computed once and reused for every view; only pixels
-whose 3x3 neighbourhood is not uniform are supersampled.
+Speed: the per-camera ray grid (one exact ray per pixel plus its derivatives along u and v, used for the
+sub-samples by a first-order expansion whose error is < 1e-4 px) is computed once and reused for every view; only
+pixels whose 3x3 neighbourhood is not uniform are supersampled, on a Fibonacci lattice of >= S*S points.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from radarcal.camera import Camera
+from radarcal.geometry import rotvec_to_R
 
 __all__ = [
     "BoardSpec",
@@ -618,10 +619,8 @@ class BoardView:
     gain: float = 1.0
 
 
-def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
-    import cv2
-
-    return cv2.Rodrigues(np.asarray(axis, float).reshape(3, 1) * angle)[0]
+def _rot(axis, angle: float) -> np.ndarray:
+    return rotvec_to_R(np.asarray(axis, float) * angle)
 
 
 def _align_z(d: np.ndarray) -> np.ndarray:
@@ -820,7 +819,7 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
                 uv_a, _ = board_truth_pixels(camera, spec, view.T_cam_board, warp=warp)
                 entry["corners_uv_actual"] = _nan_to_none(uv_a)
                 entry["bad_reason"] = f"printed pattern bowed by {amplitude * 1000:.3f} mm along y (not flat)"
-                entry["bad_bow_m"] = amplitude
+                entry["bad_bow_m"] = round(amplitude, 12)
                 entry["bad_displacement_px_max"] = round(float(np.nanmax(np.linalg.norm(uv_a - uv, axis=1))), 4)
         ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 3])
         data = buf.tobytes()
