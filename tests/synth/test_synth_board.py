@@ -183,8 +183,8 @@ def test_fisheye_corners_match_truth():
         assert found is not None
         errors.append(_match_order(found, uv) - uv)
     e = np.concatenate(errors)
-    # straight-edge detectors see curved edges here; the renderer itself is exact (paper-integral test above)
-    assert _rms(e, 0 * e) < 0.2
+    # measured 0.046-0.051 px over seeds 5-7 (edges are curved within the window, still well inside 0.1 px)
+    assert _rms(e, 0 * e) < 0.1
 
 
 def test_bad_view_is_displaced_as_recorded():
