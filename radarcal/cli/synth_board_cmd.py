@@ -48,11 +48,12 @@ def synth_board(
     coverage: str = typer.Option("full", "--coverage", help="full | poor (board kept in the upper-left of the image)."),
     bad_view: bool = typer.Option(False, "--bad-view", help="One view with a bowed (non-flat) pattern: an outlier."),
     bad_px: float = typer.Option(1.5, "--bad-px", help="Largest corner displacement of the bad view in px."),
+    stereo: float = typer.Option(0.0, "--stereo", help="Baseline in metres of a second camera (cam0/ and cam1/ folders); 0 = mono."),
     blurred: int = typer.Option(0, "--blurred", help="How many of the views get a motion streak (1-1.6 % of the image width)."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Render a calibration-target image set with known camera, poses and corner pixels."""
-    from radarcal.synth.board import BoardSpec, RenderSettings, default_camera, write_board_set
+    from radarcal.synth.board import BoardSpec, RenderSettings, default_camera, default_stereo_camera, write_board_set
 
     if board not in ("chessboard", "charuco"):
         raise InputError("--board", f"expected chessboard or charuco, got {board!r}")
@@ -86,6 +87,10 @@ def synth_board(
         raise InputError("--board", str(e)) from None
     settings = RenderSettings(supersample=supersample, blur_sigma=blur, noise_sigma=noise, vignetting=vignetting, fisheye_fov_deg=fov)
 
+    if stereo < 0 or stereo > 10:
+        raise InputError("--stereo", f"baseline must be in 0..10 m, got {stereo:g}")
+    rig = default_stereo_camera(camera, stereo) if stereo > 0 else None
+
     def prog(it):
         return progress(it, "rendering", total=len(it))
 
@@ -95,7 +100,7 @@ def synth_board(
     try:
         truth = write_board_set(out_dir, camera, spec, n_views=views, seed=seed, settings=settings, coverage=coverage,
                                 n_partial=partial, n_blank=blank, n_corrupt=corrupt, bad_view=bad_view,
-                                bad_px=bad_px, n_blurred=blurred, command=command, progress=prog)
+                                bad_px=bad_px, n_blurred=blurred, stereo=rig, command=command, progress=prog)
     except ValueError as e:
         raise InputError("--board/--size", str(e)) from None
     except OSError as e:
@@ -112,13 +117,16 @@ def synth_board(
         "files": {k: v for k, v in files.items() if k != "all"},
         "seconds": round(elapsed, 2),
     }
+    if "stereo" in truth:
+        summary["stereo"] = {k: v for k, v in truth["stereo"].items() if k != "files1"}
 
     def human(s: dict) -> None:
         c = s["camera"]
         K = c["K"]
         b = s["board"]
         shape = f"{b['cols']}x{b['rows']} {'inner corners' if b['type'] == 'chessboard' else 'squares'}"
-        typer.echo(f"wrote {s['n_files']} files + truth.json to {s['out_dir']} in {s['seconds']:.1f} s")
+        per = " per camera" if "stereo" in s else ""
+        typer.echo(f"wrote {s['n_files']} files{per} + truth.json to {s['out_dir']} in {s['seconds']:.1f} s")
         typer.echo(f"  camera: {s['model']} {c['image_size'][0]}x{c['image_size'][1]} fx={K[0][0]:.3f} fy={K[1][1]:.3f} "
                    f"cx={K[0][2]:.3f} cy={K[1][2]:.3f} dist={[round(x, 6) for x in c['dist']]}")
         typer.echo(f"  board: {b['type']}{' (legacy)' if b['legacy'] else ''} {shape}, square {b['square'] * 1000:g} mm"
@@ -126,6 +134,10 @@ def synth_board(
         f = s["files"]
         typer.echo(f"  views: {len(f['full'])} full, {len(f['partial'])} partial, {len(f['bad'])} bad, {len(f['blurred'])} blurred, "
                    f"{len(f['blank'])} blank, {len(f['corrupt'])} corrupt")
+        if "stereo" in s:
+            st = s["stereo"]
+            typer.echo(f"  stereo: cam1 {st['model1']} fx={st['camera1']['K'][0][0]:.3f}, baseline {st['baseline_m'] * 1000:.2f} mm "
+                       f"(cam0/ and cam1/, T_cam1_cam0 in truth.json)")
         for kind in ("partial", "bad", "blurred", "blank", "corrupt"):
             if f[kind]:
                 typer.echo(f"  {kind}: {', '.join(f[kind])}")

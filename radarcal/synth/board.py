@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from radarcal.camera import Camera
-from radarcal.geometry import rotvec_to_R
+from radarcal.geometry import invert_T, rotvec_to_R
 
 __all__ = [
     "BoardSpec",
@@ -35,6 +35,7 @@ __all__ = [
     "BoardView",
     "board_object_points",
     "default_camera",
+    "default_stereo_camera",
     "bow_warp",
     "bad_view_amplitude",
     "plan_views",
@@ -245,6 +246,25 @@ def default_camera(model: str = "pinhole5", image_size: tuple[int, int] = (1280,
         f = (min(w, h) / 2 - 2) / theta_d
         return Camera((w, h), [[f, 0, cx], [0, f, cy], [0, 0, 1]], dist, "fisheye")
     raise ValueError(f"model: expected pinhole5, pinhole8 or fisheye, got {model!r}")
+
+
+def default_stereo_camera(camera: Camera, baseline: float) -> tuple[Camera, np.ndarray]:
+    """A second camera of the same kind ``baseline`` metres to the right of ``camera``: (camera1, T_cam1_cam0).
+
+    Slightly different intrinsics (fx +0.3 %, principal point moved by a few px, distortion x 0.9) and a slightly
+    convergent mounting (yaw 1.5 deg towards camera 0, pitch 0.2 deg, roll 0.3 deg).
+    """
+    K = camera.K.copy()
+    K[0, 0] *= 1.003
+    K[1, 1] *= 1.0025
+    K[0, 2] += 0.0041 * camera.width
+    K[1, 2] -= 0.0030 * camera.height
+    cam1 = Camera(camera.image_size, K, camera.dist * 0.9, camera.model)
+    R = rotvec_to_R(np.radians([0.2, -1.5, 0.3]))
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ np.array([float(baseline), 0.0, 0.0])  # camera 1's centre sits at x = +baseline in camera 0
+    return cam1, T
 
 
 def model_name(camera: Camera) -> str:
@@ -676,9 +696,13 @@ def _check_full(camera: Camera, spec: BoardSpec, T: np.ndarray, min_square_px: f
 
 
 def plan_views(camera: Camera, spec: BoardSpec, n_views: int, rng: np.random.Generator, coverage: str = "full",
-               n_partial: int = 2, n_bad: int = 0, max_tilt_deg: float = 45.0, n_blurred: int = 0) -> list[BoardView]:
+               n_partial: int = 2, n_bad: int = 0, max_tilt_deg: float = 45.0, n_blurred: int = 0,
+               also_full_in: tuple[Camera, np.ndarray] | None = None) -> list[BoardView]:
     """Board poses for a set of ``n_views`` board images (``n_partial`` partly outside, ``n_bad`` outliers,
     ``n_blurred`` to be rendered with motion blur; the last two are placed like full views).
+
+    ``also_full_in=(camera1, T_cam1_cam0)``: every non-partial view must also be fully visible in a second camera
+    (stereo sets); partial views are partial in ``camera``.
 
     coverage ``"full"``: board centres stratified over the whole image, tilts up to ``max_tilt_deg`` about the
     board's x and y axes, sizes 30-75 % of the image diagonal. ``"poor"``: small, mildly tilted boards in the
@@ -740,7 +764,8 @@ def plan_views(camera: Camera, spec: BoardSpec, n_views: int, rng: np.random.Gen
                 facing = T[:3, 2] @ T[:3, 3] > 0
                 if 0.3 <= frac <= 0.8 and facing:
                     break
-            elif _check_full(camera, spec, T, min_sq):
+            elif _check_full(camera, spec, T, min_sq) and (
+                    also_full_in is None or _check_full(also_full_in[0], spec, also_full_in[1] @ T, min_sq)):
                 break
             T = None
         if T is None:
@@ -761,7 +786,7 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
                     settings: RenderSettings = RenderSettings(), coverage: str = "full", n_partial: int = 2,
                     n_blank: int = 2, n_corrupt: int = 1, bad_view: bool = False, bad_px: float = 1.5,
                     n_blurred: int = 0, blur_streak: tuple[float, float] = (0.01, 0.016),
-                    command: str = "", progress=None) -> dict:
+                    stereo: tuple[Camera, np.ndarray] | None = None, command: str = "", progress=None) -> dict:
     """Write ``n_views`` board PNGs (+ blank and corrupt files) and ``truth.json`` into ``out_dir``; return the truth.
 
     Deterministic: the same arguments give bit-identical files. The corrupt file is a rendered board PNG
@@ -769,65 +794,91 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     that its corners sit up to ``bad_px`` pixels away from where a flat board would put them. ``n_blurred`` views get
     a motion streak in a random direction, its length drawn from ``blur_streak`` x image width (12.8-20 px at 1280
     px): symmetric, so the true corners do not move, but detections on such views are poor.
+
+    ``stereo=(camera1, T_cam1_cam0)``: every view is also rendered through a second camera; images go to
+    ``cam0/img_NNN.png`` and ``cam1/img_NNN.png`` (same name = same instant) and the truth gains a ``stereo`` block
+    and ``*_cam1`` keys per view. Mono sets (the default) write ``img_NNN.png`` at the top level.
     """
     import cv2
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if (out / "truth.json").is_file():  # a previous set lives here: drop its images so no stale file survives
-        for old in out.glob("img_[0-9][0-9][0-9].png"):
-            old.unlink()
+        for pattern in ("img_[0-9][0-9][0-9].png", "cam[01]/img_[0-9][0-9][0-9].png"):
+            for old in out.glob(pattern):
+                old.unlink()
+    prefix0, prefix1 = ("cam0/", "cam1/") if stereo is not None else ("", "")
+    for prefix in {prefix0, prefix1} - {""}:
+        (out / prefix).mkdir(exist_ok=True)
     root = np.random.SeedSequence(int(seed))
     plan_seed, *view_seeds = root.spawn(1 + n_views + n_blank + n_corrupt)
     rng = np.random.default_rng(plan_seed)
     views = plan_views(camera, spec, n_views, rng, coverage, n_partial=n_partial, n_bad=1 if bad_view else 0,
-                       n_blurred=n_blurred)
+                       n_blurred=n_blurred, also_full_in=stereo)
     # corrupt files are rendered board views too (then truncated); blanks have no board
-    extra_corrupt = plan_views(camera, spec, n_corrupt, rng, coverage, n_partial=0) if n_corrupt else []
+    extra_corrupt = plan_views(camera, spec, n_corrupt, rng, coverage, n_partial=0, also_full_in=stereo) if n_corrupt else []
     for v in extra_corrupt:
         v.kind = "corrupt"
     all_views = views + [BoardView("blank", None, float(rng.uniform(0.9, 1.06))) for _ in range(n_blank)] + extra_corrupt
     order = rng.permutation(len(all_views))
-    renderer = BoardRenderer(camera, spec, settings)
+    rigs = [(camera, np.eye(4), BoardRenderer(camera, spec, settings), prefix0, "")]
+    stereo_seeds: list = []
+    if stereo is not None:
+        cam1, T_cam1_cam0 = stereo[0], np.asarray(stereo[1], float)
+        rigs.append((cam1, T_cam1_cam0, BoardRenderer(cam1, spec, settings), prefix1, "_cam1"))
+        stereo_seeds = np.random.SeedSequence([int(seed), 1]).spawn(len(all_views))
     obj = board_object_points(spec)
     entries = []
     iterator = range(len(order)) if progress is None else progress(range(len(order)))
     for i in iterator:
         view = all_views[order[i]]
-        vrng = np.random.default_rng(view_seeds[order[i]])
         name = f"img_{i:03d}.png"
-        entry: dict = {"file": name, "kind": view.kind, "has_board": view.T_cam_board is not None,
+        entry: dict = {"kind": view.kind, "has_board": view.T_cam_board is not None,
                        "readable": view.kind != "corrupt", "gain": round(view.gain, 6)}
-        warp = None
+        warp, amplitude = None, 0.0
         if view.kind == "bad":
             amplitude = bad_view_amplitude(camera, spec, view.T_cam_board, bad_px)
             warp = bow_warp(spec, amplitude)
-        if view.T_cam_board is None:
-            img = render_blank(renderer, vrng)
-            entry.update(T_cam_board=None, corners_uv=None, visible=None, corner_ids=[], n_visible=0)
-        else:
-            streak, angle = 0.0, 0.0
-            if view.kind == "blurred":
-                streak = float(vrng.uniform(*blur_streak)) * camera.width
-                angle = float(vrng.uniform(0, np.pi))
-                entry.update(motion_blur_px=round(streak, 4), motion_blur_angle_deg=round(np.degrees(angle), 4))
-            img = renderer.render(view.T_cam_board, vrng, warp=warp, gain=view.gain, motion_blur_px=streak, motion_angle=angle)
-            uv, vis = board_truth_pixels(camera, spec, view.T_cam_board)
-            entry.update(T_cam_board=np.round(view.T_cam_board, 12).tolist(), corners_uv=_nan_to_none(uv),
-                         visible=vis.tolist(), corner_ids=np.nonzero(vis)[0].tolist(), n_visible=int(vis.sum()))
-            if warp is not None:
-                uv_a, _ = board_truth_pixels(camera, spec, view.T_cam_board, warp=warp)
-                entry["corners_uv_actual"] = _nan_to_none(uv_a)
-                entry["bad_reason"] = f"printed pattern bowed by {amplitude * 1000:.3f} mm along y (not flat)"
-                entry["bad_bow_m"] = round(amplitude, 12)
-                entry["bad_displacement_px_max"] = round(float(np.nanmax(np.linalg.norm(uv_a - uv, axis=1))), 4)
-        ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 3])
-        data = buf.tobytes()
-        if view.kind == "corrupt":
-            data = data[: max(64, len(data) // 3)]
-        (out / name).write_bytes(data)
-        entry["crc32"] = format(zlib.crc32(data) & 0xFFFFFFFF, "08x")
-        entries.append(entry)
+            entry["bad_reason"] = f"printed pattern bowed by {amplitude * 1000:.3f} mm along y (not flat)"
+            entry["bad_bow_m"] = round(amplitude, 12)
+        streak, angle = 0.0, 0.0
+        for cam, T_ci_cam0, renderer, prefix, sfx in rigs:
+            vrng = np.random.default_rng(view_seeds[order[i]] if not sfx else stereo_seeds[order[i]])
+            entry["file" + sfx] = prefix + name
+            if view.T_cam_board is None:
+                img = render_blank(renderer, vrng)
+                entry.update({"T_cam_board" if not sfx else "T_cam1_board": None, "corners_uv" + sfx: None,
+                              "visible" + sfx: None, "corner_ids" + sfx: [], "n_visible" + sfx: 0})
+            else:
+                T = T_ci_cam0 @ view.T_cam_board
+                if view.kind == "blurred" and not sfx:
+                    streak = float(vrng.uniform(*blur_streak)) * cam.width
+                    angle = float(vrng.uniform(0, np.pi))
+                    entry.update(motion_blur_px=round(streak, 4), motion_blur_angle_deg=round(np.degrees(angle), 4))
+                img = renderer.render(T, vrng, warp=warp, gain=view.gain, motion_blur_px=streak, motion_angle=angle)
+                uv, vis = board_truth_pixels(cam, spec, T)
+                entry.update({"T_cam_board" if not sfx else "T_cam1_board": np.round(T, 12).tolist(),
+                              "corners_uv" + sfx: _nan_to_none(uv), "visible" + sfx: vis.tolist(),
+                              "corner_ids" + sfx: np.nonzero(vis)[0].tolist(), "n_visible" + sfx: int(vis.sum())})
+                if warp is not None:
+                    uv_a, _ = board_truth_pixels(cam, spec, T, warp=warp)
+                    entry["corners_uv_actual" + sfx] = _nan_to_none(uv_a)
+                    entry["bad_displacement_px_max" + sfx] = round(float(np.nanmax(np.linalg.norm(uv_a - uv, axis=1))), 4)
+            ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 3])
+            data = buf.tobytes()
+            if view.kind == "corrupt":
+                data = data[: max(64, len(data) // 3)]
+            (out / (prefix + name)).write_bytes(data)
+            entry["crc32" + sfx] = format(zlib.crc32(data) & 0xFFFFFFFF, "08x")
+        entries.append(_ordered_entry(entry))
+
+    def file_lists(key: str) -> dict:
+        kinds = ("full", "partial", "bad", "blurred", "blank", "corrupt")
+        lists = {"all": [e[key] for e in entries],
+                 "board": [e[key] for e in entries if e["kind"] in ("full", "partial", "bad", "blurred")]}
+        lists.update({k: [e[key] for e in entries if e["kind"] == k] for k in kinds})
+        return lists
+
     truth = {
         "format": TRUTH_FORMAT,
         "seed": int(seed),
@@ -843,22 +894,28 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
         "noise": {"image_noise_sigma_dn": settings.noise_sigma, "blur_sigma_px": settings.blur_sigma,
                   "vignetting": settings.vignetting, "supersample": settings.supersample},
         "coverage": coverage,
-        "files": {
-            "all": [e["file"] for e in entries],
-            "board": [e["file"] for e in entries if e["kind"] in ("full", "partial", "bad", "blurred")],
-            "full": [e["file"] for e in entries if e["kind"] == "full"],
-            "partial": [e["file"] for e in entries if e["kind"] == "partial"],
-            "bad": [e["file"] for e in entries if e["kind"] == "bad"],
-            "blurred": [e["file"] for e in entries if e["kind"] == "blurred"],
-            "blank": [e["file"] for e in entries if e["kind"] == "blank"],
-            "corrupt": [e["file"] for e in entries if e["kind"] == "corrupt"],
-        },
+        "files": file_lists("file"),
         "views": entries,
     }
+    if stereo is not None:
+        cam1, T10 = rigs[1][0], rigs[1][1]
+        truth["stereo"] = {"model1": model_name(cam1), "camera1": cam1.to_dict(), "T_cam1_cam0": np.round(T10, 12).tolist(),
+                           "baseline_m": round(float(np.linalg.norm(invert_T(T10)[:3, 3])), 12), "files1": file_lists("file_cam1")}
     tmp = out / "truth.json.tmp"
     tmp.write_text(json.dumps(truth, indent=1) + "\n")
     tmp.replace(out / "truth.json")
     return truth
+
+
+_ENTRY_ORDER = ("file", "kind", "has_board", "readable", "gain", "T_cam_board", "corners_uv", "visible", "corner_ids",
+                "n_visible", "corners_uv_actual", "bad_reason", "bad_bow_m", "bad_displacement_px_max", "motion_blur_px",
+                "motion_blur_angle_deg", "crc32")
+
+
+def _ordered_entry(entry: dict) -> dict:
+    """Stable key order in truth.json: camera-0 keys first (as in mono sets), then the ``*_cam1`` keys."""
+    first = {k: entry[k] for k in _ENTRY_ORDER if k in entry}
+    return first | {k: v for k, v in entry.items() if k not in first}
 
 
 @dataclass

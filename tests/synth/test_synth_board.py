@@ -323,3 +323,39 @@ def test_committed_sample_regenerates_bit_for_bit(tmp_path):
                     command=truth["command"])
     for name in truth["files"]["all"] + ["truth.json"]:
         assert (tmp_path / name).read_bytes() == (sample / name).read_bytes(), name
+
+
+def test_stereo_set_recovers_the_true_baseline(tmp_path):
+    """Both cameras' renders are consistent: stereoCalibrate (true intrinsics fixed) on detected corners finds T_cam1_cam0."""
+    from radarcal.geometry import pose_error
+    from radarcal.synth.board import default_stereo_camera
+
+    cam0 = default_camera("pinhole5", (640, 480))
+    rig = default_stereo_camera(cam0, 0.12)
+    truth = write_board_set(tmp_path, cam0, CHESS, n_views=6, seed=1, n_partial=0, n_blank=1, n_corrupt=0, stereo=rig)
+    loaded = load_board_truth(tmp_path)
+    st = truth["stereo"]
+    cam1 = Camera.from_dict(st["camera1"])
+    T10 = np.asarray(st["T_cam1_cam0"])
+    assert abs(st["baseline_m"] - 0.12) < 1e-9 and len(st["files1"]["full"]) == 6
+    obj = board_object_points(CHESS).astype(np.float32)
+    p0, p1 = [], []
+    for v in loaded.views:
+        if v["kind"] != "full":
+            assert v["file"].startswith("cam0/") and v["file_cam1"].startswith("cam1/") and v["T_cam1_board"] is None
+            continue
+        np.testing.assert_allclose(np.asarray(v["T_cam1_board"]), T10 @ v["T"], atol=1e-9)
+        uv1 = np.array(v["corners_uv_cam1"], float)
+        np.testing.assert_allclose(uv1, cam1.project_from(T10 @ v["T"], obj)[0], atol=1e-5)
+        f0 = _detect_chessboard(read_image(tmp_path / v["file"], grayscale=True), CHESS)
+        f1 = _detect_chessboard(read_image(tmp_path / v["file_cam1"], grayscale=True), CHESS)
+        p0.append(_match_order(f0, v["uv"]).astype(np.float32))
+        p1.append(_match_order(f1, uv1).astype(np.float32))
+        assert _rms(p1[-1], uv1) < 0.1
+    out = cv2.stereoCalibrate([obj] * len(p0), p0, p1, cam0.K, cam0.dist, cam1.K, cam1.dist, cam0.image_size,
+                              flags=cv2.CALIB_FIX_INTRINSIC)
+    T_est = np.eye(4)
+    T_est[:3, :3], T_est[:3, 3] = out[5], out[6].ravel()
+    deg, m = pose_error(T_est, T10)
+    print(f"stereo: rotation error {deg:.4f} deg, translation error {m * 1000:.3f} mm")
+    assert deg < 0.02 and m < 0.3e-3, (deg, m)
