@@ -99,7 +99,7 @@ def synth_board(
         return progress(it, "rendering", total=len(it))
 
     # the command as typed, with the output folder replaced so that the same call elsewhere gives the same bytes
-    command = " ".join("OUT_DIR" if a == str(out_dir) else a for a in command_line().split(" "))
+    command = " ".join("OUT_DIR" if a and not a.startswith("-") and Path(a) == Path(out_dir) else a for a in command_line().split(" "))
     t0 = time.perf_counter()
     try:
         truth = write_board_set(out_dir, camera, spec, n_views=views, seed=seed, settings=settings, coverage=coverage,
