@@ -304,7 +304,7 @@ class _RayGrid:
     drays_du: np.ndarray  # (h, w, 3) d ray / d u (per pixel)
     drays_dv: np.ndarray  # (h, w, 3)
     valid: np.ndarray  # (h, w) bool: exact ray, neighbours valid too
-    lens: np.ndarray  # (h, w) bool: inside the lens' image circle (all True for pinhole)
+    lens: np.ndarray  # (h, w) float32 in [0, 1]: pixel area inside the lens' image circle (all 1 for pinhole)
 
 
 def _unproject_grid(camera: Camera, step: int = 8, tol: float = 1e-13, max_iter: int = 12) -> tuple[np.ndarray, np.ndarray]:
@@ -382,7 +382,7 @@ def _fisheye_rays(camera: Camera, max_theta: float) -> tuple[np.ndarray, np.ndar
 
 def _ray_grid(camera: Camera, fisheye_fov_deg: float) -> _RayGrid:
     w, h = camera.image_size
-    lens = np.ones((h, w), bool)
+    lens = np.ones((h, w), np.float32)
     if camera.model == "fisheye":
         th = np.radians(fisheye_fov_deg / 2)
         rays, ok = _fisheye_rays(camera, th + np.radians(3.0))
@@ -390,7 +390,9 @@ def _ray_grid(camera: Camera, fisheye_fov_deg: float) -> _RayGrid:
         theta_d = th * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
         u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
         Kinv = np.linalg.inv(camera.K)
-        lens = np.linalg.norm(np.stack([u, v], axis=-1) @ Kinv[:2, :2].T + Kinv[:2, 2], axis=-1) <= theta_d
+        r_d = np.linalg.norm(np.stack([u, v], axis=-1) @ Kinv[:2, :2].T + Kinv[:2, 2], axis=-1)
+        f = 0.5 * (camera.fx + camera.fy)
+        lens = np.clip(0.5 + (theta_d - r_d) * f, 0.0, 1.0).astype(np.float32)  # anti-aliased circle edge
     else:
         xy, ok = _unproject_grid(camera)
         xy = np.where(ok[..., None], xy, 0.0)
@@ -550,7 +552,8 @@ class BoardRenderer:
             img = (s.black * frac + (s.white - s.black) * refl) + (1.0 - frac) * bg
         img = img * np.float32(gain)
         if self.camera.model == "fisheye":
-            img = np.where(self.grid.lens, img, np.float32(4.0))
+            lens = self.grid.lens
+            img = lens * img + (1.0 - lens) * np.float32(4.0)
         return img.astype(np.float32)
 
     def finish(self, radiance: np.ndarray, rng: np.random.Generator, blur_sigma: float | None = None,
