@@ -1,0 +1,1 @@
+"""Ground-truth scene generators (data in users' formats + truth.json)."""
