@@ -654,6 +654,7 @@ class RadarResult:
     loo: dict
     rejected: list
     patent_pose_G: Pose2 | None = None  # (theta2, a2, b2) chain before joint refinement
+    sigma_G: dict = field(default_factory=dict)  # 1-sigma of T_G_radar's (theta, a, b) (+ height when estimated)
 
 
 @dataclass
@@ -862,9 +863,25 @@ def calibrate_rig(
         mh = h if h is not None else 0.0
         T_G_radar = pose2_to_T(pose_G[r], mh if slant else 0.0)
         results[r] = RadarResult(r, pose_G[r], mh, T_lidar_G @ T_G_radar, f, radar_radar.get(r, {}).get("pose_ref"), per, loo,
-                                 [(info[i], why) for i, why in rej], patent_G.get(r))
+                                 [(info[i], why) for i, why in rej], patent_G.get(r), _inverse_sigma(f))
     allxy = np.concatenate([np.asarray(v, float).reshape(-1, 2) for s in scenes for v in s.radar_xy.values()]) if scenes else np.zeros((0, 2))
     return RigCalibration(T_lidar_G, results, filter_counts, radar_radar, joint_info, quantisation_report(allxy), model, notes)
+
+
+def _inverse_sigma(f: Fit2D) -> dict:
+    """Sigma of the inverse pose's (theta, a, b) by first-order propagation of ``f.cov`` (fit maps G -> radar)."""
+    th, t = f.pose.theta, f.pose.t
+    R = rot2(th)
+    dR = np.array([[-np.sin(th), -np.cos(th)], [np.cos(th), -np.sin(th)]])
+    J = np.zeros((3, 3))
+    J[0, 0] = -1.0
+    J[1:, 0] = -dR.T @ t
+    J[1:, 1:] = -R.T
+    C = J @ f.cov[:3, :3] @ J.T
+    out = {k: float(np.sqrt(max(C[i, i], 0.0))) for i, k in enumerate(["theta", "a", "b"])}
+    if "height" in f.sigma:
+        out["height"] = f.sigma["height"]
+    return out
 
 
 def _fit_kw(slant: bool, known_h, h_guess) -> dict:
