@@ -241,18 +241,34 @@ def fit_rigid_2d(
     return Fit2D(pose, h_out, r, float(np.sqrt(np.mean(np.sum(r**2, axis=1)))), sig, cov, len(src), model)
 
 
-def procrustes_floor(src: np.ndarray, sigma: float) -> dict:
-    """Cramér-Rao floor of the planar fit ``dst = R src + t`` with i.i.d. N(0, sigma^2) noise on each coordinate of
-    ``dst``: RMS yaw (rad) and RMS translation-vector length (m). The least-squares (Procrustes) estimate reaches it."""
+def procrustes_floor(src: np.ndarray, sigma: float, pose: Pose2 | None = None, src_z: np.ndarray | None = None, height: float | None = None) -> dict:
+    """Cramér-Rao floor of ``dst = R src + t`` (or its slant version when ``src_z``/``height`` are given) with
+    i.i.d. N(0, sigma^2) noise on each coordinate of ``dst``: RMS yaw (rad), RMS length of the translation error of
+    ``t`` (``translation_m``) and, with ``pose``, of the inverse transform's translation (``inverse_translation_m``:
+    the radar's position in the LiDAR ground frame). The least-squares estimate reaches it (Procrustes floor)."""
     src = np.asarray(src, float).reshape(-1, 2)
-    # Jacobian of R src + t wrt (theta, a, b) at theta = 0 (the floor does not depend on theta)
+    pose = pose or Pose2(0.0, np.zeros(2))
+
+    def pred(x):
+        q = src @ rot2(x[0]).T + x[1:3]
+        return q.ravel() if src_z is None else slant_predict(q, np.asarray(src_z) - height).ravel()
+
+    x0 = pose.as_array()
     J = np.zeros((2 * len(src), 3))
-    J[0::2, 0] = -src[:, 1]
-    J[1::2, 0] = src[:, 0]
-    J[0::2, 1] = 1.0
-    J[1::2, 2] = 1.0
+    for k in range(3):  # central differences (3 parameters)
+        e = np.zeros(3)
+        e[k] = 1e-6
+        J[:, k] = (pred(x0 + e) - pred(x0 - e)) / 2e-6
     cov = np.linalg.inv(J.T @ J) * sigma**2
-    return {"yaw_rad": float(np.sqrt(cov[0, 0])), "translation_m": float(np.sqrt(cov[1, 1] + cov[2, 2])), "cov": cov}
+    th, t = pose.theta, pose.t
+    dR = np.array([[-np.sin(th), -np.cos(th)], [np.cos(th), -np.sin(th)]])
+    Ji = np.zeros((3, 3))
+    Ji[0, 0] = -1.0
+    Ji[1:, 0] = -dR.T @ t
+    Ji[1:, 1:] = -rot2(th).T
+    ci = Ji @ cov @ Ji.T
+    return {"yaw_rad": float(np.sqrt(cov[0, 0])), "translation_m": float(np.sqrt(cov[1, 1] + cov[2, 2])),
+            "inverse_translation_m": float(np.sqrt(ci[1, 1] + ci[2, 2])), "cov": cov}
 
 
 # ---------------------------------------------------------------------------------------------------------------

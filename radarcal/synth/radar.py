@@ -72,6 +72,7 @@ class RadarSceneSpec:
     ground_points: int = 12000
     clutter: bool = True  # boxes and walls beyond the range gate (radar returns from the boxes too)
     bad_reflector_offset: float = 0.0  # displacement (m) of every radar return of reflector 0 in scene 0
+    fixed_apexes: list | None = None  # per scene: [(forward, lateral, height), ...] relative to the main LiDAR's ground point
     init_error: tuple = (3.0, 0.10)  # perturbation of the initial guesses in rig.yaml (deg, m); None = no guesses
     seed: int = 0
 
@@ -165,7 +166,9 @@ def generate_radar_session(spec: RadarSceneSpec) -> RadarSession:
         # reflector apexes ahead of the main LiDAR, spread laterally, separated
         apex = []
         tries = 0
-        while len(apex) < spec.reflectors_per_scene:
+        if spec.fixed_apexes is not None:
+            apex = [np.array([main_xy[0] + f, main_xy[1] + l, h]) for f, l, h in spec.fixed_apexes[s % len(spec.fixed_apexes)]]
+        while len(apex) < spec.reflectors_per_scene and spec.fixed_apexes is None:
             tries += 1
             fwd = rng.uniform(*spec.reflector_forward)
             lat = rng.uniform(*spec.reflector_lateral)
