@@ -47,6 +47,7 @@ __all__ = [
     "procrustes_floor",
     "mutual_nn",
     "robust_match_2d",
+    "robust_match_sets",
     "GroundPlane",
     "fit_ground_plane",
     "ReflectorExtraction",
@@ -159,7 +160,24 @@ class Fit2D:
     cov: np.ndarray
     n: int
     model: str  # "planar" | "slant" | "slant+height"
-    cost_history: list = field(default_factory=list)
+    jac: np.ndarray | None = None  # (2N, p) Jacobian of the prediction at the solution
+
+    def deletion_residuals(self) -> np.ndarray:
+        """Leave-one-out residual lengths from one fit (leverage formula ``(I - H_ii)^-1 r_i`` per 2x2 block; exact
+        for a linear model, first order for this one)."""
+        J = self.jac
+        n = len(self.residuals)
+        try:
+            A = np.linalg.inv(J.T @ J)
+        except np.linalg.LinAlgError:
+            return np.full(n, np.nan)
+        Jb = J.reshape(n, 2, -1)
+        H = np.einsum("nip,pq,njq->nij", Jb, A, Jb)
+        M = np.eye(2)[None] - H
+        ok = np.abs(np.linalg.det(M)) > 1e-12
+        out = np.full(n, np.inf)
+        out[ok] = np.linalg.norm(np.linalg.solve(M[ok], self.residuals[ok][..., None])[..., 0], axis=1)
+        return out
 
     @property
     def per_point(self) -> np.ndarray:
@@ -238,7 +256,7 @@ def fit_rigid_2d(
     pose = Pose2(float(_wrap(x[0])), np.array(x[1:3]))
     h_out = float(x[3]) if est_h else (float(height) if slant else None)
     model = "planar" if not slant else ("slant+height" if est_h else "slant")
-    return Fit2D(pose, h_out, r, float(np.sqrt(np.mean(np.sum(r**2, axis=1)))), sig, cov, len(src), model)
+    return Fit2D(pose, h_out, r, float(np.sqrt(np.mean(np.sum(r**2, axis=1)))), sig, cov, len(src), model, np.asarray(sol.jac))
 
 
 def procrustes_floor(src: np.ndarray, sigma: float, pose: Pose2 | None = None, src_z: np.ndarray | None = None, height: float | None = None) -> dict:
@@ -296,21 +314,37 @@ def robust_match_2d(
     max_rotation_from_init: float = np.radians(45.0),
     min_pair_distance: float = 0.3,
 ) -> tuple[np.ndarray, Pose2 | None]:
-    """Correspondences between two 2D point sets related by an unknown rigid transform ``dst ~ R src + t``.
+    """Correspondences between two 2D point sets related by an unknown rigid transform ``dst ~ R src + t``
+    (see :func:`robust_match_sets`). Returns (pairs (K,2), pose) or (empty, None) when fewer than 2 matches exist."""
+    pairs, pose = robust_match_sets([src], [dst], init, gate, max_rotation_from_init, min_pair_distance)
+    return pairs[0], pose
 
-    Hypotheses: ``init`` itself (when given) and every pair of src points against every pair of dst points whose
-    separations agree within ``gate`` (RANSAC over pairs, exhaustive: the sets are small). Each hypothesis is scored by
-    its mutual-nearest-neighbour inliers within ``gate`` (ties: smaller residual), refined in closed form on them and
-    re-matched. With ``init`` the hypotheses are limited to rotations within ``max_rotation_from_init`` of it.
-    Returns (pairs (K,2), pose) or (empty, None) when fewer than 2 matches exist.
+
+def robust_match_sets(
+    srcs: Sequence[np.ndarray],
+    dsts: Sequence[np.ndarray],
+    init: Pose2 | None = None,
+    gate: float = 0.3,
+    max_rotation_from_init: float = np.radians(45.0),
+    min_pair_distance: float = 0.3,
+    max_hypotheses: int = 400,
+) -> tuple[list, Pose2 | None]:
+    """One rigid transform ``dst ~ R src + t`` shared by several placements (lists of point sets, one pair per scene).
+
+    Hypotheses: ``init`` itself (when given) and, in every scene, every pair of src points against every ordered pair
+    of dst points whose separations agree within ``gate`` (RANSAC over pairs, exhaustive: the sets are small). A
+    hypothesis is scored by its mutual-nearest-neighbour inliers within ``gate`` summed over all scenes (ties: the
+    smaller mean squared residual), refined in closed form on them and re-matched. With ``init``, hypotheses are limited
+    to rotations within ``max_rotation_from_init`` of it. More than ``max_hypotheses`` pair hypotheses are subsampled
+    (seeded, so the result is deterministic). Returns (pairs per scene, pose) or (empties, None).
     """
-    src = np.asarray(src, float).reshape(-1, 2)
-    dst = np.asarray(dst, float).reshape(-1, 2)
-    hyps: list[Pose2] = []
-    if init is not None:
-        hyps.append(init)
-    ns, nd = len(src), len(dst)
-    if ns >= 2 and nd >= 2:
+    S = [np.asarray(x, float).reshape(-1, 2) for x in srcs]
+    D = [np.asarray(x, float).reshape(-1, 2) for x in dsts]
+    hyps: list[Pose2] = [init] if init is not None else []
+    for src, dst in zip(S, D):
+        ns, nd = len(src), len(dst)
+        if ns < 2 or nd < 2:
+            continue
         i1, i2 = np.triu_indices(ns, 1)
         j1, j2 = np.nonzero(~np.eye(nd, dtype=bool))  # ordered dst pairs
         ds = np.linalg.norm(src[i1] - src[i2], axis=1)
@@ -323,30 +357,51 @@ def robust_match_2d(
         if init is not None:
             keep = np.abs(_wrap(th - init.theta)) < max_rotation_from_init
             pi, pj, th = pi[keep], pj[keep], th[keep]
-        for k in range(len(th)):  # loop over hypotheses (few), not over points
-            cs = 0.5 * (src[i1[pi[k]]] + src[i2[pi[k]]])
-            cd = 0.5 * (dst[j1[pj[k]]] + dst[j2[pj[k]]])
-            hyps.append(Pose2(float(th[k]), cd - rot2(th[k]) @ cs))
-    best = (np.zeros((0, 2), int), None, np.inf)
-    for h in hyps:
-        pose = h
-        pairs = mutual_nn(pose.apply(src), dst, gate)
+        cs = 0.5 * (src[i1[pi]] + src[i2[pi]])
+        cd = 0.5 * (dst[j1[pj]] + dst[j2[pj]])
+        c, s_ = np.cos(th), np.sin(th)
+        t = cd - np.stack([c * cs[:, 0] - s_ * cs[:, 1], s_ * cs[:, 0] + c * cs[:, 1]], axis=1)
+        hyps += [Pose2(float(th[k]), t[k]) for k in range(len(th))]
+    if len(hyps) > max_hypotheses:
+        first = hyps[:1] if init is not None else []
+        pick = np.random.default_rng(0).choice(len(hyps) - len(first), max_hypotheses, replace=False) + len(first)
+        hyps = first + [hyps[k] for k in np.sort(pick)]
+
+    def match(pose):
+        return [mutual_nn(pose.apply(a), b, gate) for a, b in zip(S, D)]
+
+    def stack(pairs):
+        a = np.concatenate([S[k][p[:, 0]] for k, p in enumerate(pairs)]) if pairs else np.zeros((0, 2))
+        b = np.concatenate([D[k][p[:, 1]] for k, p in enumerate(pairs)]) if pairs else np.zeros((0, 2))
+        return a, b
+
+    empty = [np.zeros((0, 2), int) for _ in S]
+    best = (empty, None, 0, np.inf)
+    seen = set()
+    for h in hyps:  # loop over hypotheses (a few hundred at most), each vectorised
+        key = (round(h.theta, 3), round(float(h.t[0]), 2), round(float(h.t[1]), 2))
+        if key in seen:
+            continue
+        seen.add(key)
+        pose, pairs = h, match(h)
         for _ in range(3):
-            if len(pairs) < 2:
+            a, b = stack(pairs)
+            if len(a) < 2:
                 break
-            pose = procrustes_2d(src[pairs[:, 0]], dst[pairs[:, 1]])
+            pose = procrustes_2d(a, b)
             if init is not None and abs(_wrap(pose.theta - init.theta)) > max_rotation_from_init:
-                pairs = np.zeros((0, 2), int)
+                pairs = empty
                 break
-            new = mutual_nn(pose.apply(src), dst, gate)
-            if len(new) == len(pairs) and np.array_equal(new, pairs):
+            new = match(pose)
+            if all(np.array_equal(x, y) for x, y in zip(new, pairs)):
                 break
             pairs = new
-        if len(pairs) < 2:
+        a, b = stack(pairs)
+        if len(a) < 2:
             continue
-        cost = float(np.mean(np.sum((pose.apply(src[pairs[:, 0]]) - dst[pairs[:, 1]]) ** 2, axis=1)))
-        if len(pairs) > len(best[0]) or (len(pairs) == len(best[0]) and cost < best[2]):
-            best = (pairs, pose, cost)
+        cost = float(np.mean(np.sum((pose.apply(a) - b) ** 2, axis=1)))
+        if len(a) > best[2] or (len(a) == best[2] and cost < best[3]):
+            best = (pairs, pose, len(a), cost)
     return best[0], best[1]
 
 
@@ -618,28 +673,31 @@ def leave_one_out(src: np.ndarray, dst: np.ndarray, **fit_kw) -> dict:
 
 
 def reject_outliers(src: np.ndarray, dst: np.ndarray, threshold: float = 0.15, min_keep: int = 3, k_sigma: float = 4.0, **fit_kw) -> tuple[np.ndarray, list]:
-    """Iteratively drop the correspondence with the largest leave-one-out residual while it exceeds both
-    ``threshold`` (m) and ``k_sigma`` times the robust (MAD) scale of the others. Returns (keep mask, reasons)."""
+    """Iteratively drop the correspondence with the largest leave-one-out residual (leverage formula to pick it, an
+    exact refit without it to test it) while that hold-out residual exceeds both ``threshold`` (m) and ``k_sigma``
+    times the RMS residual of the fit without it. Returns (keep mask, [(index, reason)])."""
     src = np.asarray(src, float).reshape(-1, 2)
     dst = np.asarray(dst, float).reshape(-1, 2)
     keep = np.ones(len(src), bool)
     reasons = []
-    z = fit_kw.get("src_z")
-    while keep.sum() > min_keep:
+    z = fit_kw.pop("src_z", None)
+    zz = None if z is None else np.asarray(z, float)
+    n_par = 4 if fit_kw.get("estimate_height") else 3
+    while keep.sum() > max(min_keep, 2) and 2 * (keep.sum() - 1) > n_par:
         idx = np.nonzero(keep)[0]
-        kw = dict(fit_kw)
-        if z is not None:
-            kw["src_z"] = np.asarray(z)[idx]
-        loo = leave_one_out(src[idx], dst[idx], **kw)
-        r = loo["holdout_residuals"]
-        if not np.all(np.isfinite(r)):
-            break
-        j = int(np.argmax(r))
-        others = np.delete(r, j)
-        scale = 1.4826 * np.median(np.abs(others)) if len(others) else 0.0
-        if r[j] > threshold and r[j] > k_sigma * scale:
+        f = fit_rigid_2d(src[idx], dst[idx], src_z=None if zz is None else zz[idx], **fit_kw)
+        if f.rms <= threshold / k_sigma / 4:
+            break  # everything already fits far below the threshold
+        r = f.deletion_residuals()
+        j = int(np.nanargmax(np.where(np.isfinite(r), r, -1)))
+        rest = np.delete(idx, j)
+        g = fit_rigid_2d(src[rest], dst[rest], src_z=None if zz is None else zz[rest], init=f.pose, **fit_kw)
+        q = g.pose.apply(src[idx[j]][None])
+        pred = q if zz is None else slant_predict(q, zz[idx[j]] - g.height)
+        rj = float(np.linalg.norm(pred[0] - dst[idx[j]]))
+        if rj > threshold and rj > k_sigma * g.rms:
             keep[idx[j]] = False
-            reasons.append((int(idx[j]), f"hold-out residual {r[j]:.3f} m > {threshold:g} m and > {k_sigma:g}x the others' scale ({scale:.3f} m)"))
+            reasons.append((int(idx[j]), f"hold-out residual {rj:.3f} m > {threshold:g} m and > {k_sigma:g}x the others' RMS ({g.rms:.3f} m)"))
         else:
             break
     return keep, reasons
@@ -769,13 +827,11 @@ def calibrate_rig(
         init = None
         if reference in init_G and r in init_G:
             init = init_G[reference].inverse().compose(init_G[r])
-        src, dst = [], []
-        for sc in scenes:
-            a = _desl(r, sc.radar_xy.get(r, np.zeros((0, 2))))
-            b = _desl(reference, sc.radar_xy.get(reference, np.zeros((0, 2))))
-            pairs, _ = robust_match_2d(a, b, init=init, gate=gate)
-            if len(pairs) >= 2:
-                src.append(a[pairs[:, 0]]), dst.append(b[pairs[:, 1]])
+        A_ = [_desl(r, sc.radar_xy.get(r, np.zeros((0, 2)))) for sc in scenes]
+        B_ = [_desl(reference, sc.radar_xy.get(reference, np.zeros((0, 2)))) for sc in scenes]
+        pairs_l, _ = robust_match_sets(A_, B_, init=init, gate=gate)
+        src = [a[p[:, 0]] for a, p in zip(A_, pairs_l) if len(p)]
+        dst = [b[p[:, 1]] for b, p in zip(B_, pairs_l) if len(p)]
         if src and sum(len(s) for s in src) >= 2:
             s_, d_ = np.concatenate(src), np.concatenate(dst)
             f = fit_rigid_2d(s_, d_)
@@ -792,24 +848,13 @@ def calibrate_rig(
         filter_counts[sc.name] = fr.counts()
         merged.append((fr.cluster_means, fr.cluster_radars >= 2))
     # --- step 5: LiDAR <-> reference radar (theta2, a2, b2) with B (+ C consistent with the LiDAR) ----------------
-    src, dst = [], []
     init_ref_G = init_G.get(reference)
-    for si, (means, multi) in enumerate(merged):
-        pg = lidar_G[si]
-        if len(pg) < 1 or len(means) < 1:
-            continue
-        b_pts = means[multi] if multi.sum() >= 2 else means  # patent: keep B; fall back to A when B is too small
-        pairs, pose = robust_match_2d(b_pts, pg[:, :2], init=init_ref_G, gate=gate)
-        if len(pairs) >= 2:
-            src.append(b_pts[pairs[:, 0]]), dst.append(pg[pairs[:, 1], :2])
-    if not src:
-        # pool the scenes for one RANSAC (each scene alone had < 2 matches)
-        allm = np.concatenate([m for m, _ in merged]) if merged else np.zeros((0, 2))
-        allp = np.concatenate([p[:, :2] for p in lidar_G])
-        pairs, _ = robust_match_2d(allm, allp, init=init_ref_G, gate=gate)
-        if len(pairs) < 2:
-            raise ValueError("fewer than 2 reflectors matched between the LiDAR and the radars")
-        src, dst = [allm[pairs[:, 0]]], [allp[pairs[:, 1]]]
+    b_sets = [means[multi] if multi.sum() >= 2 else means for means, multi in merged]  # patent: keep B; too few -> A
+    pairs_l, _ = robust_match_sets(b_sets, [p[:, :2] for p in lidar_G], init=init_ref_G, gate=gate)
+    src = [b[p[:, 0]] for b, p in zip(b_sets, pairs_l) if len(p)]
+    dst = [g[p[:, 1], :2] for g, p in zip(lidar_G, pairs_l) if len(p)]
+    if sum(len(x) for x in src) < 2:
+        raise ValueError("fewer than 2 reflectors matched between the LiDAR and the radars")
     f_ref = fit_rigid_2d(np.concatenate(src), np.concatenate(dst))  # ref radar -> G
     patent_G = {r: f_ref.pose.compose(pose_ref[r]) for r in pose_ref}
     # --- per radar: final model fit (slant), robust re-matching, outliers -----------------------------------------
