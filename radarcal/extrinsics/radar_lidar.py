@@ -714,6 +714,7 @@ class SceneObs:
     lidar_centres: np.ndarray  # (K,3)
     radar_xy: dict  # radar name -> (M,2)
     ground: GroundPlane | None = None
+    raw_radar_xy: dict | None = None  # before frame averaging (for the quantisation report)
 
 
 @dataclass
@@ -925,7 +926,7 @@ def calibrate_rig(
         T_G_radar = pose2_to_T(pose_G[r], mh if slant else 0.0)
         results[r] = RadarResult(r, pose_G[r], mh, T_lidar_G @ T_G_radar, f, radar_radar.get(r, {}).get("pose_ref"), per, loo,
                                  [(info[i], why) for i, why in rej], patent_G.get(r), _inverse_sigma(f))
-    allxy = np.concatenate([np.asarray(v, float).reshape(-1, 2) for s in scenes for v in s.radar_xy.values()]) if scenes else np.zeros((0, 2))
+    allxy = np.concatenate([np.asarray(v, float).reshape(-1, 2) for s in scenes for v in (s.raw_radar_xy or s.radar_xy).values()]) if scenes else np.zeros((0, 2))
     return RigCalibration(T_lidar_G, results, filter_counts, radar_radar, joint_info, quantisation_report(allxy), model, notes)
 
 
@@ -1061,4 +1062,5 @@ def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_ga
                 out[r], counts[r] = means, c
                 continue
         out[r], counts[r] = xy, np.ones(len(xy), int)
-    return SceneObs(name, ext.centres, out, ext.ground), ext, counts
+    raw = {r: np.asarray(xy, float).reshape(-1, 2) for r, xy in radar_xy.items()}
+    return SceneObs(name, ext.centres, out, ext.ground, raw), ext, counts
