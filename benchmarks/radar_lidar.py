@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -87,9 +88,12 @@ def monte_carlo(n_runs: int = 200, sigma: float = 0.05, frames: int = 1, seed0: 
             "ratio_yaw": rms_yaw / fl["yaw_rad"], "ratio_pos": rms_pos / fl["inverse_translation_m"], "seconds": time.perf_counter() - t0}
 
 
+SLANT_APEXES = [(1.4, 0.6), (2.2, 1.6), (3.2, 0.9), (2.8, 2.2)]  # reflectors on one side of the radar
+
+
 def slant_bias(height_diff: float = 0.5, model: str = "slant") -> dict:
-    """Noise-free: reflectors ``height_diff`` above the radar plane; error of the slant vs the planar model."""
-    apexes = [[(f, l, 0.5 + height_diff) for f, l, _ in MC_APEXES[0]]]
+    """Noise-free: reflectors ``height_diff`` above the radar plane, all on one side; in-plane error of the model."""
+    apexes = [[(f, l, 0.5 + height_diff) for f, l in SLANT_APEXES]]
     spec = RadarSceneSpec(rig=RadarRigSpec(radars=dict(MC_RADAR)), n_scenes=1, reflectors_per_scene=4, fixed_apexes=apexes, radar_sigma=0.0, lidar_noise=0.0, init_error=None, seed=7)
     r = run_once(spec, model)["radar_middle"]
     return {"yaw_deg": abs(np.degrees(r["yaw_err"])), "pos_m": float(np.linalg.norm(r["xy_err"])), "rms_m": r["rms"]}
@@ -120,17 +124,17 @@ def main(argv: list[str]) -> int:
     n = int(argv[0]) if argv else 200
     print(f"Monte Carlo: 1 radar, N = 4 reflectors, full pipeline (synthetic cloud -> extraction -> NLS), {n} runs each")
     print(f"{'sigma':>6} {'frames':>6} {'model':>6} | {'RMS yaw':>9} {'floor':>8} {'ratio':>6} | {'RMS pos':>8} {'floor':>8} {'ratio':>6} | {'planar floor':>17} | {'s':>5}")
-    for sigma, frames in ((0.05, 1), (0.05, 100)):
-        r = monte_carlo(n, sigma, frames)
+    for sigma, frames, model in ((0.05, 1, "slant"), (0.05, 100, "slant"), (0.05, 100, "planar")):
+        r = monte_carlo(n if model == "slant" else max(n // 4, 10), sigma, frames, model=model)
         print(f"{sigma:6.3f} {frames:6d} {r['model']:>6} | {r['rms_yaw_deg']:8.4f}° {r['floor_yaw_deg']:7.4f}° {r['ratio_yaw']:6.3f} | {100 * r['rms_pos_m']:6.3f}cm {100 * r['floor_pos_m']:6.3f}cm {r['ratio_pos']:6.3f} | "
               f"{r['floor_planar_yaw_deg']:.4f}° {100 * r['floor_planar_pos_m']:.3f}cm | {r['seconds']:5.1f}")
-    print("(issue 7's floor for its geometry: 0.59° / 4.9 cm at 1 frame, 0.059° / 0.49 cm at 100 frames)")
-    print("\nSlant-range bias, noise-free, reflectors 0.5 m above the radar plane:")
-    for model in ("planar", "slant"):
-        b = slant_bias(0.5, model)
-        print(f"  {model:>6}: yaw error {b['yaw_deg']:.4f}°, position error {100 * b['pos_m']:.3f} cm, residual {100 * b['rms_m']:.3f} cm")
-    from pathlib import Path
-
+    print("(issue 7's floor for its geometry: 0.59° / 4.9 cm at 1 frame, 0.059° / 0.49 cm at 100 frames; the planar row is the")
+    print(" patent's model on the same data: reflectors 0.45-0.65 m above the radar plane bias it beyond the floor)")
+    print("\nSlant-range bias, noise-free, four reflectors on one side, dz above the radar plane:")
+    for dz in (0.25, 0.5):
+        for model in ("planar", "slant"):
+            b = slant_bias(dz, model)
+            print(f"  dz={dz:.2f} m {model:>6}: yaw error {b['yaw_deg']:.4f}°, position error {100 * b['pos_m']:.3f} cm, residual {100 * b['rms_m']:.3f} cm")
     root = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "tudelft_msc_example"
     if root.is_dir():
         print("\nTU Delft example (29 placements; hold-out = the 12 accumulator placements):")
@@ -138,7 +142,31 @@ def main(argv: list[str]) -> int:
             print(f"  {name:>22}: yaw {d['yaw_deg']:.3f}°, t=({d['t'][0]:.3f}, {d['t'][1]:.3f}) m, RMS {100 * d['rms_m']:.2f} cm, LOO {100 * d['loo_rms_m']:.2f} cm, "
                   f"hold-out {100 * d['holdout12_rms_m']:.2f} cm; fit on the 12: yaw {d['fit12_yaw_deg']:.3f}°, t=({d['fit12_t'][0]:.3f}, {d['fit12_t'][1]:.3f})"
                   + (f", radar height {d['height']:.3f} m" if d["height"] is not None else ""))
+    oc = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "opencalib_lidar2lidar_0001"
+    if oc.is_dir():
+        print("\nOpenCalib lidar2lidar/0001: left/right -> top from initial_extrinsic.txt (fitness / inlier RMSE at 0.3 m):")
+        for name, d in lidar_lidar(oc).items():
+            print(f"  {name}: {d['method']:>14}: fitness {d['f0']:.3f} -> {d['f1']:.3f}, RMSE {d['r0']:.3f} -> {d['r1']:.3f} m, tilt fixed by the ground {d['tilt']:.1f}°, "
+                  f"rpy {d['rpy'][0]:.2f} {d['rpy'][1]:.2f} {d['rpy'][2]:.2f}°, xyz {d['xyz'][0]:.3f} {d['xyz'][1]:.3f} {d['xyz'][2]:.3f} m, {d['s']:.1f} s")
     return 0
+
+
+def lidar_lidar(root) -> dict:
+    from radarcal.extrinsics.lidar_lidar import register_lidar
+    from radarcal.io import read_cloud
+
+    top = read_cloud(root / "top.pcd").points.astype(float)
+    guess = {"left": (-0.06763169358385032, 0.6257701373941718, -0.35145357319239473, 0, 0, 90), "right": (-0.0001307057033816915, -0.4632752877792159, -0.46602840121078765, 0, 0, -90)}
+    out = {}
+    for name, g in guess.items():
+        src = read_cloud(root / f"{name}.pcd").points.astype(float)
+        for method in ("gicp", "point_to_plane"):
+            t0 = time.perf_counter()
+            r = register_lidar(src, top, geometry.T_from_xyz_rpy_deg(*g), method=method)
+            xr = geometry.T_to_xyz_rpy_deg(r.T_target_source)
+            out[f"{name} ({method})"] = {"method": method, "f0": r.initial_fitness, "f1": r.fitness, "r0": r.initial_rmse, "r1": r.inlier_rmse,
+                                         "tilt": (r.prealign or {}).get("tilt_fixed_deg", float("nan")), "rpy": xr[3:], "xyz": xr[:3], "s": time.perf_counter() - t0}
+    return out
 
 
 if __name__ == "__main__":

@@ -1034,7 +1034,7 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
         x[free_mask] = xf
         return resid(x)
 
-    sol = least_squares(resid_free, x0[free_mask], method="trf", x_scale="jac")
+    sol = least_squares(resid_free, x0[free_mask], method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
     x = x0.copy()
     x[free_mask] = sol.x
     P, H, F = unpack(x)
