@@ -58,12 +58,10 @@ def floor_for(spec: RadarSceneSpec, sigma_eff: float, radar: str = "radar_middle
     ses = generate_radar_session(spec)
     T_v_r = np.array(ses.truth["T_vehicle_sensor"][radar])
     apex_v = np.concatenate([np.array(s["apex_vehicle"]) for s in ses.truth["scenes"]])
-    p_r = geometry.transform_points(geometry.invert_T(T_v_r), apex_v)
     # dst = R src + t with src = apex in the vehicle (ground) frame, dst = radar horizontal position
     pose = Pose2.from_T(geometry.invert_T(T_v_r))
     kw = {"src_z": apex_v[:, 2], "height": float(T_v_r[2, 3])} if slant else {}
     f = procrustes_floor(apex_v[:, :2], sigma_eff, pose, **kw)
-    del p_r
     return f
 
 

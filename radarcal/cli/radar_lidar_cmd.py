@@ -99,6 +99,7 @@ def radar_lidar(
         b.set_transform(main, r, res.T_lidar_radar, method=f"radar-lidar: corner reflectors, {model} model, NLS{' + joint refinement' if joint else ''}", residual=resid, sigma=sig, provenance=prov)
         xyz = geometry.T_to_xyz_rpy_deg(res.T_lidar_radar)
         summary_radars[r] = {"T_main_radar": res.T_lidar_radar, "xyz_m": xyz[:3], "rpy_deg": xyz[3:], "ground_pose": {"yaw_deg": float(np.degrees(res.pose_G.theta)), "a_m": res.pose_G.t[0], "b_m": res.pose_G.t[1]},
+                             "patent_chain_ground_pose": None if res.patent_pose_G is None else {"yaw_deg": float(np.degrees(res.patent_pose_G.theta)), "a_m": res.patent_pose_G.t[0], "b_m": res.patent_pose_G.t[1]},
                              "mount_height_m": res.mount_height, "residual": resid, "sigma": sig, "rejected": [{"scene": i[0], "lidar_index": i[1], "why": w} for i, w in res.rejected],
                              "per_reflector": [{k: v for k, v in p.items()} for p in res.per_reflector],
                              "radar_radar": None if res.pairwise_pose_ref is None else {"reference": rig.reference_radar, "theta1_deg": float(np.degrees(res.pairwise_pose_ref.theta)), "a1_m": res.pairwise_pose_ref.t[0], "b1_m": res.pairwise_pose_ref.t[1],

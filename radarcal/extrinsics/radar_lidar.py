@@ -871,7 +871,8 @@ def calibrate_rig(
     fits: dict[str, Fit2D] = {}
     keepinfo: dict[str, tuple] = {}
     for r in list(pose_G):
-        h = heights[r] if heights[r] is not None else z_nominal - 0.0
+        # unknown height: start below the reflectors (bumper height); dz = 0 is a stationary point of the slant model
+        h = heights[r] if heights[r] is not None else (0.5 if abs(z_nominal - 0.5) > 0.15 else z_nominal - 0.4)
         for _ in range(3):
             s_, d_, z_, info = _obs_for_radar(scenes, lidar_G, r, pose_G[r], h, gate, slant)
             if len(s_) < 2:

@@ -275,3 +275,18 @@ def test_joint_refinement_uses_radar_only_reflectors():
     ej = _errors(ses, _calibrate(ses, joint=True))
     es = _errors(ses, _calibrate(ses, joint=False))
     assert sum(v[0] for v in ej.values()) < 1.5 * sum(v[0] for v in es.values())
+
+
+def test_unknown_mount_height_estimated():
+    spec = RadarSceneSpec(n_scenes=4, radar_sigma=0.0, lidar_noise=0.0, init_error=(3.0, 0.1), seed=15)
+    ses = generate_radar_session(spec)
+    rig = ses.rig
+    heights = {n: v["mount_height_m"] for n, v in rig["radars"].items()}
+    heights["radar_right"] = None
+    init = {n: geometry.T_from_xyz_rpy_deg(*v["initial_T_main"]) for n, v in rig["radars"].items()}
+    cal = calibrate_rig(_obs(ses), list(rig["radars"]), heights, reference="radar_middle", init_T_lidar_radar=init)
+    r = cal.radars["radar_right"]
+    assert r.mount_height == pytest.approx(ses.truth["radar_mount_height_m"]["radar_right"], abs=1e-5)
+    assert any("radar_right" in n and "estimated" in n for n in cal.notes)
+    deg, m = _errors(ses, cal)["radar_right"]
+    assert deg < 1e-3 and m < 1e-4
