@@ -144,7 +144,7 @@ def main(argv: list[str]) -> int:
     if oc.is_dir():
         print("\nOpenCalib lidar2lidar/0001: left/right -> top from initial_extrinsic.txt (fitness / inlier RMSE at 0.3 m):")
         for name, d in lidar_lidar(oc).items():
-            print(f"  {name}: {d['method']:>14}: fitness {d['f0']:.3f} -> {d['f1']:.3f}, RMSE {d['r0']:.3f} -> {d['r1']:.3f} m, tilt fixed by the ground {d['tilt']:.1f}°, "
+            print(f"  {name:>22}: fitness {d['f0']:.3f} -> {d['f1']:.3f}, RMSE {d['r0']:.3f} -> {d['r1']:.3f} m, tilt fixed by the ground {d['tilt']:.1f}°, "
                   f"rpy {d['rpy'][0]:.2f} {d['rpy'][1]:.2f} {d['rpy'][2]:.2f}°, xyz {d['xyz'][0]:.3f} {d['xyz'][1]:.3f} {d['xyz'][2]:.3f} m, {d['s']:.1f} s")
     return 0
 
