@@ -847,6 +847,11 @@ def calibrate_rig(
         pts = [pose_ref[r].apply(_desl(r, sc.radar_xy.get(r, np.zeros((0, 2))))) if r in pose_ref else np.zeros((0, 2)) for r in radar_names]
         fr = filter_detections(pts, forward, lateral, gate)
         filter_counts[sc.name] = fr.counts()
+        nb = int((fr.cluster_radars >= 2).sum())
+        if nb < 2:
+            notes.append(f"scene {sc.name}: {nb} reflector(s) seen by two or more radars (set B): set A used for the LiDAR match")
+        if len(fr.C) > len(fr.B):
+            notes.append(f"scene {sc.name}: more single-radar detections (C = {len(fr.C)}) than multi-radar ones (B = {len(fr.B)}): ghosts or radars that see too little")
         merged.append((fr.cluster_means, fr.cluster_radars >= 2))
     # --- step 5: LiDAR <-> reference radar (theta2, a2, b2) with B (+ C consistent with the LiDAR) ----------------
     init_ref_G = init_G.get(reference)
@@ -889,6 +894,8 @@ def calibrate_rig(
             keepinfo[r] = (s_, d_, z_, info, keep, rej, kw)
             if converged:
                 break
+        if r not in fits:
+            notes.append(f"{r}: fewer than 2 reflectors matched to the LiDAR: not calibrated")
         if r in fits and heights[r] is None and slant:
             heights[r] = float(fits[r].height)
     # --- joint refinement: all radars at once, radar-only reflectors as free 2D points ----------------------------

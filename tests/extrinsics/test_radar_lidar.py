@@ -290,3 +290,18 @@ def test_unknown_mount_height_estimated():
     assert any("radar_right" in n and "estimated" in n for n in cal.notes)
     deg, m = _errors(ses, cal)["radar_right"]
     assert deg < 1e-3 and m < 1e-4
+
+
+def test_scene_checks_and_uncalibratable_radar_noted():
+    spec = RadarSceneSpec(n_scenes=2, radar_sigma=0.0, lidar_noise=0.0, ghost_rate=4.0, init_error=(3.0, 0.1), seed=5)
+    ses = generate_radar_session(spec)
+    obs = _obs(ses)
+    for o in obs:
+        o.radar_xy["radar_right"] = np.zeros((0, 2))  # this radar saw nothing
+    rig = ses.rig
+    init = {n: geometry.T_from_xyz_rpy_deg(*v["initial_T_main"]) for n, v in rig["radars"].items()}
+    cal = calibrate_rig(obs, list(rig["radars"]), {n: v["mount_height_m"] for n, v in rig["radars"].items()}, reference="radar_middle", init_T_lidar_radar=init)
+    assert "radar_right" not in cal.radars and any("radar_right: fewer than 2" in n for n in cal.notes)
+    assert any("single-radar detections" in n for n in cal.notes)  # 4 ghosts per radar and frame
+    for n, (deg, m) in _errors(ses, cal).items():
+        assert np.radians(deg) < 1e-6 and m < 1e-6, (n, deg, m)
