@@ -813,10 +813,13 @@ def calibrate_rig(
         if slant and heights[r] is None:
             notes.append(f"{r}: no mounting height given: estimated from the slant model (only |dz| is observable)")
 
+    # unknown height: start below the reflectors (bumper height); dz = 0 is a stationary point of the slant model
+    h_guess = 0.5 if abs(z_nominal - 0.5) > 0.15 else z_nominal - 0.4
+
     def _desl(name, m):
         if not slant:
             return np.asarray(m, float).reshape(-1, 2)
-        h = heights[name] if heights[name] is not None else 0.0
+        h = heights[name] if heights[name] is not None else h_guess
         return deslant(m, z_nominal - h)
 
     # --- step 2: radar <-> radar (theta1, a1, b1): each radar into the reference radar ---------------------------
@@ -876,8 +879,7 @@ def calibrate_rig(
     fits: dict[str, Fit2D] = {}
     keepinfo: dict[str, tuple] = {}
     for r in list(pose_G):
-        # unknown height: start below the reflectors (bumper height); dz = 0 is a stationary point of the slant model
-        h = heights[r] if heights[r] is not None else (0.5 if abs(z_nominal - 0.5) > 0.15 else z_nominal - 0.4)
+        h = heights[r] if heights[r] is not None else h_guess
         for _ in range(3):
             s_, d_, z_, info = _obs_for_radar(scenes, lidar_G, r, pose_G[r], h, gate, slant)
             if len(s_) < 2:
