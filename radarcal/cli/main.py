@@ -11,6 +11,7 @@ import typer
 from radarcal.cli import bundle_cmd, common
 from radarcal.cli import field_pnp_cmd, synth_field_cmd
 from radarcal.cli import synth_board_cmd
+from radarcal.cli import radar_lidar_cmd, synth_radar_cmd
 from radarcal.errors import InputError
 
 app = typer.Typer(name="radarcal", help="Calibration for camera / LiDAR / mmWave-radar rigs.", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -30,6 +31,8 @@ synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' forma
 app.add_typer(synth_app, name="synth")
 synth_app.command("field")(synth_field_cmd.synth_field)
 synth_app.command("board")(synth_board_cmd.synth_board)
+synth_app.command("radar")(synth_radar_cmd.synth_radar)
+app.command("radar-lidar")(radar_lidar_cmd.radar_lidar)
 
 
 def _click_classes(name: str) -> tuple[type, ...]:

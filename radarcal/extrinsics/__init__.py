@@ -1,0 +1,1 @@
+"""Extrinsic calibration cores: radar <-> LiDAR (corner reflectors), LiDAR <-> LiDAR (registration)."""

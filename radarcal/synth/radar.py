@@ -1,0 +1,316 @@
+"""Ground-truth radar-reflector scenes for ``radarcal radar-lidar`` (issue 3, scene 4).
+
+A vehicle (frame ``vehicle``: ground at z = 0, x forward, y left, z up) carries a front main LiDAR (pitched down),
+optional extra LiDARs, and left / middle / right 2D mmWave radars, each level at its own mounting height. Trihedral
+corner reflectors stand on tripods at several placements (scenes). Each reflector's opening (boresight) faces the main
+LiDAR; its apex is the radar's phase centre (what the radar reports).
+
+LiDAR clouds: flat ground, tripods, reflector plates sampled as the centroids of an even subdivision of the three
+triangular plates (the same pattern on each plate, so the points' centroid lies on the boresight exactly
+``2 * edge / (3 * sqrt(3))`` in front of the apex -- written to ``rig.yaml`` as ``reflector.offset_m``), clutter
+boxes and walls (beyond the 4 m range gate), range noise along each ray. No occlusion is modelled.
+
+Radar: slant range (a reflector above or below the scanning plane is reported at ``sqrt(r_h^2 + dz^2)``), Gaussian
+noise per axis, optional grid quantisation (ARS408: 0.2 m), missed detections, ghost points (Poisson per frame),
+returns from the clutter, optionally one "bad" reflector whose radar returns are displaced (multipath).
+
+Everything is drawn from one ``numpy`` generator seeded by ``spec.seed``: the same spec writes the same bytes.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from radarcal import geometry
+
+__all__ = ["RadarRigSpec", "RadarSceneSpec", "RadarSession", "generate_radar_session", "write_radar_session", "trihedral_points", "reflector_offset"]
+
+
+def _default_radars() -> dict:
+    # name: (x, y, mounting height z, yaw deg) in the vehicle frame
+    return {"radar_left": (1.95, 0.85, 0.55, 35.0), "radar_middle": (2.05, 0.0, 0.50, 0.0), "radar_right": (1.95, -0.85, 0.60, -35.0)}
+
+
+def _default_extra_lidars() -> dict:
+    # name: (x, y, z, roll, pitch, yaw) deg in the vehicle frame
+    return {"lidar_left": (1.6, 1.0, 1.9, 0.0, 8.0, 70.0), "lidar_right": (1.6, -1.0, 1.85, 0.0, 8.0, -70.0)}
+
+
+@dataclass
+class RadarRigSpec:
+    main_lidar: str = "lidar_front"
+    main_lidar_pose: tuple = (2.2, 0.0, 1.35, 0.6, 6.0, 0.8)  # x y z roll pitch yaw (deg) in the vehicle frame
+    extra_lidars: dict = field(default_factory=dict)  # name -> (x, y, z, roll, pitch, yaw)
+    radars: dict = field(default_factory=_default_radars)  # name -> (x, y, height, yaw)
+    radar_fov_deg: float = 120.0
+    radar_max_range: float = 40.0
+    lidar_max_range: float = 30.0
+
+
+@dataclass
+class RadarSceneSpec:
+    rig: RadarRigSpec = field(default_factory=RadarRigSpec)
+    n_scenes: int = 4
+    reflectors_per_scene: int = 3
+    reflector_edge: float = 0.25  # trihedral edge length (m)
+    reflector_height: tuple = (0.85, 1.25)  # apex height range above ground (m)
+    reflector_forward: tuple = (1.6, 3.6)  # apex distance ahead of the main LiDAR (m, ground plane)
+    reflector_lateral: tuple = (-1.8, 1.8)
+    min_separation: float = 0.8
+    plate_subdivisions: int = 8
+    radar_sigma: float = 0.02  # per-axis Gaussian noise (m)
+    quantisation: float = 0.0  # grid step of the radar coordinates (0 = none; ARS408 lists: 0.2)
+    n_frames: int = 1  # radar frames per scene (all written to radar.csv)
+    p_miss: float = 0.0  # probability that a radar misses a visible reflector in a frame
+    ghost_rate: float = 0.0  # mean ghost detections per radar per frame (uniform in the FOV, 0.5-8 m)
+    lidar_noise: float = 0.0  # LiDAR range noise (m, along the ray)
+    ground_points: int = 12000
+    clutter: bool = True  # boxes and walls beyond the range gate (radar returns from the boxes too)
+    bad_reflector_offset: float = 0.0  # displacement (m) of every radar return of reflector 0 in scene 0
+    fixed_apexes: list | None = None  # per scene: [(forward, lateral, height), ...] relative to the main LiDAR's ground point
+    init_error: tuple = (3.0, 0.10)  # perturbation of the initial guesses in rig.yaml (deg, m); None = no guesses
+    seed: int = 0
+
+
+@dataclass
+class RadarSession:
+    rig: dict  # rig.yaml content
+    scenes: list  # [{"name", "clouds": {lidar: (N,3) float32}, "radar": {"radar": names, "xy", "rcs", "velocity"}}]
+    truth: dict
+
+
+def reflector_offset(edge: float) -> float:
+    """Distance from the apex to the centroid of the three (evenly sampled) plates of a triangular trihedral."""
+    return 2.0 * edge / (3.0 * np.sqrt(3.0))
+
+
+def trihedral_points(apex: np.ndarray, boresight: np.ndarray, edge: float, n: int) -> np.ndarray:
+    """Points on the three inner plates of a triangular trihedral corner reflector (apex, opening towards
+    ``boresight``): the centroids of an ``n x n`` subdivision of each plate, the same pattern on each plate."""
+    b = np.asarray(boresight, float) / np.linalg.norm(boresight)
+    # frame whose axes are the three edges; its (1,1,1) diagonal is the boresight, one plate's edge pair symmetric
+    # about the vertical plane through b
+    up = np.array([0.0, 0.0, 1.0])
+    side = np.cross(up, b)
+    side = side / np.linalg.norm(side) if np.linalg.norm(side) > 1e-9 else np.array([0.0, 1.0, 0.0])
+    up2 = np.cross(b, side)
+    # canonical edges in a frame where the diagonal is x': e_k = b/sqrt3 + sqrt(2/3) (cos a_k side + sin a_k up2)
+    ang = np.radians([90.0, 210.0, 330.0])
+    E = [b / np.sqrt(3.0) + np.sqrt(2.0 / 3.0) * (np.cos(a) * side + np.sin(a) * up2) for a in ang]
+    # sub-triangle centroids of an n x n subdivision of the unit triangle (u, v >= 0, u + v <= 1)
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    up_ok = i + j <= n - 1
+    cu = np.concatenate([(i[up_ok] + 1 / 3), (i[i + j <= n - 2] + 2 / 3)]) / n
+    cv = np.concatenate([(j[up_ok] + 1 / 3), (j[i + j <= n - 2] + 2 / 3)]) / n
+    uv = np.stack([cu, cv], axis=1) * edge
+    plates = [uv[:, :1] * E[k] + uv[:, 1:] * E[(k + 1) % 3] for k in range(3)]
+    return np.asarray(apex, float) + np.concatenate(plates)
+
+
+def _box(rng, centre, size, n):
+    """Points on the four sides and the top of a box standing on the ground (uniform per face)."""
+    cx, cy = centre
+    w, d, h = size
+    face = rng.integers(0, 5, n)
+    u, v = rng.random(n), rng.random(n)
+    x = cx + (u - 0.5) * w
+    y = cy + (v - 0.5) * d
+    z = np.full(n, float(h))
+    side_x = face < 2  # x = cx -/+ w/2
+    x[side_x] = cx + np.where(face[side_x] == 0, -0.5, 0.5) * w
+    y[side_x] = cy + (u[side_x] - 0.5) * d
+    side_y = (face == 2) | (face == 3)
+    y[side_y] = cy + np.where(face[side_y] == 2, -0.5, 0.5) * d
+    side = face < 4
+    z[side] = v[side] * h
+    return np.stack([x, y, z], axis=1)
+
+
+def generate_radar_session(spec: RadarSceneSpec) -> RadarSession:
+    """Build the whole session in memory (see the module docstring). Deterministic for a given ``spec``."""
+    rng = np.random.default_rng(spec.seed)
+    rig = spec.rig
+    T_v_main = geometry.T_from_xyz_rpy_deg(*rig.main_lidar_pose)
+    lidars = {rig.main_lidar: T_v_main}
+    for name, pose in rig.extra_lidars.items():
+        lidars[name] = geometry.T_from_xyz_rpy_deg(*pose)
+    radars = {name: geometry.T_from_xyz_rpy_deg(x, y, h, 0.0, 0.0, yaw) for name, (x, y, h, yaw) in rig.radars.items()}
+    heights = {name: float(v[2]) for name, v in rig.radars.items()}
+    main_xy = T_v_main[:2, 3]
+    main_pos = T_v_main[:3, 3]
+    half_fov = np.radians(rig.radar_fov_deg / 2)
+
+    # static structure (same in every scene): clutter boxes and walls beyond the range gate
+    static = [np.zeros((0, 3))]
+    clutter_centres = []
+    if spec.clutter:
+        for (cx, cy, w, d, h) in [(9.0, 3.0, 1.2, 1.0, 1.5), (8.0, -4.0, 0.8, 2.0, 1.0), (12.0, -0.5, 1.5, 1.5, 2.0), (-3.0, 6.0, 2.0, 1.0, 1.2)]:
+            static.append(_box(rng, (cx, cy), (w, d, h), 800))
+            clutter_centres.append((cx, cy, h / 2))
+        for (x0, y0, x1, y1) in [(14.0, -8.0, 14.0, 8.0), (-6.0, 9.0, 14.0, 9.0), (-6.0, -9.0, 8.0, -9.0)]:
+            n = 2500
+            u, v = rng.random(n), rng.random(n)
+            static.append(np.stack([x0 + u * (x1 - x0), y0 + u * (y1 - y0), v * 2.5], axis=1))
+    static_pts = np.concatenate(static)
+
+    edge = spec.reflector_edge
+    off = reflector_offset(edge)
+    scenes, truth_scenes = [], []
+    head_extents = []
+    for s in range(spec.n_scenes):
+        # reflector apexes ahead of the main LiDAR, spread laterally, separated
+        apex = []
+        tries = 0
+        if spec.fixed_apexes is not None:
+            apex = [np.array([main_xy[0] + f, main_xy[1] + l, h]) for f, l, h in spec.fixed_apexes[s % len(spec.fixed_apexes)]]
+        while len(apex) < spec.reflectors_per_scene and spec.fixed_apexes is None:
+            tries += 1
+            fwd = rng.uniform(*spec.reflector_forward)
+            lat = rng.uniform(*spec.reflector_lateral)
+            p = np.array([main_xy[0] + fwd, main_xy[1] + lat, rng.uniform(*spec.reflector_height)])
+            if np.hypot(fwd, lat) > 3.9:
+                continue
+            if all(np.linalg.norm(p[:2] - q[:2]) >= spec.min_separation for q in apex) or tries > 1000:
+                apex.append(p)
+        apex = np.array(apex)
+        refl_pts, pole_pts = [], []
+        for p in apex:  # per reflector (few)
+            b = main_pos - p
+            pts = trihedral_points(p, b, edge, spec.plate_subdivisions)
+            refl_pts.append(pts)
+            head_extents.append(float(np.ptp(pts[:, 2])))
+        head = max(head_extents) + 0.01
+        for p, pts in zip(apex, refl_pts):
+            zmax = pts[:, 2].max()
+            low = pts[np.argmin(pts[:, 2])]
+            top = zmax - head - 0.015
+            zz = np.linspace(0.0, top, max(int(top / 0.02), 2))
+            pole_pts.append(np.stack([np.full_like(zz, low[0]), np.full_like(zz, low[1]), zz], axis=1))
+        # ground: uniform over a disc around the main LiDAR's footprint
+        r = 10.0 * np.sqrt(rng.random(spec.ground_points))
+        a = rng.uniform(0, 2 * np.pi, spec.ground_points)
+        ground = np.stack([main_xy[0] + r * np.cos(a), main_xy[1] + r * np.sin(a), np.zeros_like(r)], axis=1)
+        world_exact = [np.concatenate(refl_pts), np.concatenate(pole_pts)]
+        clouds = {}
+        for li, (lname, T_v_l) in enumerate(lidars.items()):
+            T_l_v = geometry.invert_T(T_v_l)
+            if li == 0:
+                parts = [ground] + world_exact + [static_pts]
+            else:  # an independent sampling of the same surfaces for every other LiDAR
+                r2 = 10.0 * np.sqrt(rng.random(spec.ground_points))
+                a2 = rng.uniform(0, 2 * np.pi, spec.ground_points)
+                g2 = np.stack([main_xy[0] + r2 * np.cos(a2), main_xy[1] + r2 * np.sin(a2), np.zeros_like(r2)], axis=1)
+                jitter = rng.normal(0, 0.01, size=static_pts.shape) * np.array([1, 1, 0])
+                parts = [g2] + world_exact + [static_pts + jitter]
+            pl = geometry.transform_points(T_l_v, np.concatenate(parts))
+            rng_ = np.linalg.norm(pl, axis=1)
+            pl = pl[(rng_ < rig.lidar_max_range) & (rng_ > 0.3)]
+            if spec.lidar_noise > 0:
+                rr = np.linalg.norm(pl, axis=1, keepdims=True)
+                pl = pl * (1.0 + rng.normal(0, spec.lidar_noise, size=(len(pl), 1)) / rr)
+            clouds[lname] = pl.astype(np.float32)
+        # radar detections, frame by frame
+        names_out, xy_out, rcs_out, vel_out = [], [], [], []
+        targets = [(p, 12.0, k) for k, p in enumerate(apex)] + [(np.array(c), 5.0, -1) for c in clutter_centres]
+        for _f in range(spec.n_frames):
+            for rname, T_v_r in radars.items():
+                T_r_v = geometry.invert_T(T_v_r)
+                P = geometry.transform_points(T_r_v, np.array([t[0] for t in targets]).reshape(-1, 3))
+                rh = np.linalg.norm(P[:, :2], axis=1)
+                az = np.arctan2(P[:, 1], P[:, 0])
+                vis = (np.abs(az) < half_fov) & (rh < rig.radar_max_range) & (rh > 0.3)
+                vis &= rng.random(len(P)) >= spec.p_miss
+                m = P[:, :2] * (np.sqrt(rh**2 + P[:, 2] ** 2) / np.maximum(rh, 1e-9))[:, None]  # slant range
+                if spec.bad_reflector_offset and s == 0:
+                    m[0] += np.array([0.6, 0.8]) * spec.bad_reflector_offset
+                m = m + rng.normal(0, spec.radar_sigma, size=m.shape)
+                rcs = np.array([t[1] for t in targets]) + rng.normal(0, 1.0, len(targets))
+                ng = rng.poisson(spec.ghost_rate) if spec.ghost_rate > 0 else 0
+                g_r = rng.uniform(0.5, 8.0, ng)
+                g_a = rng.uniform(-half_fov, half_fov, ng)
+                gm = np.stack([g_r * np.cos(g_a), g_r * np.sin(g_a)], axis=1)
+                allm = np.concatenate([m[vis], gm])
+                allrcs = np.concatenate([rcs[vis], rng.uniform(-10, 0, ng)])
+                if spec.quantisation > 0:
+                    allm = np.round(allm / spec.quantisation) * spec.quantisation
+                names_out += [rname] * len(allm)
+                xy_out.append(allm)
+                rcs_out.append(allrcs)
+                vel_out.append(np.zeros(len(allm)))
+        scenes.append({"name": f"{s:02d}", "clouds": clouds,
+                       "radar": {"radar": names_out, "xy": np.concatenate(xy_out).reshape(-1, 2), "rcs": np.concatenate(rcs_out), "velocity": np.concatenate(vel_out)}})
+        truth_scenes.append({"name": f"{s:02d}", "apex_vehicle": apex.tolist(), "apex_main": geometry.transform_points(geometry.invert_T(T_v_main), apex).tolist()})
+
+    head_size = max(head_extents) + 0.01
+    err = spec.init_error
+    rig_yaml = {
+        "main_lidar": rig.main_lidar,
+        "lidars": {n: ({} if n == rig.main_lidar else {"initial_T_main": _xyzrpy(_perturb(geometry.invert_T(T_v_main) @ T, err, rng))}) for n, T in lidars.items()},
+        "radars": {n: {"mount_height_m": heights[n], **({"initial_T_main": _xyzrpy(_perturb(geometry.invert_T(T_v_main) @ T, err, rng))} if err else {})} for n, T in radars.items()},
+        "reference_radar": "radar_middle" if "radar_middle" in radars else next(iter(radars)),
+        "reflector": {"offset_m": float(off), "head_size_m": float(head_size), "edge_m": edge},
+        "extraction": {"range_gate_m": 4.0},
+        "filter_region": {"forward_m": [0.0, 5.0], "lateral_m": [-5.0, 5.0]},
+        "T_vehicle_main": _xyzrpy(T_v_main),
+    }
+    if not err:
+        for n in rig_yaml["lidars"]:
+            if n != rig.main_lidar:
+                rig_yaml["lidars"][n] = {"initial_T_main": _xyzrpy(geometry.invert_T(T_v_main) @ lidars[n])}
+    T_main_v = geometry.invert_T(T_v_main)
+    truth = {
+        "seed": spec.seed,
+        "spec": _jsonable(asdict(spec)),
+        "main_lidar": rig.main_lidar,
+        "T_vehicle_sensor": {n: T.tolist() for n, T in {**lidars, **radars}.items()},
+        "T_main_sensor": {n: (T_main_v @ T).tolist() for n, T in {**lidars, **radars}.items()},
+        "radar_mount_height_m": heights,
+        "reflector_offset_m": float(off),
+        "scenes": truth_scenes,
+        "notes": "T_a_b maps points in b into a; radars are level at their mounting height; the radar reports the apex (slant range)",
+    }
+    return RadarSession(rig_yaml, scenes, truth)
+
+
+def _perturb(T, err, rng):
+    if not err:
+        return T
+    return geometry.perturb_T(T, err[0], err[1], rng)
+
+
+def _xyzrpy(T) -> list:
+    return [round(float(v), 9) for v in geometry.T_to_xyz_rpy_deg(T)]
+
+
+def _jsonable(o):
+    if isinstance(o, dict):
+        return {k: _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, np.generic):
+        return o.item()
+    return o
+
+
+def write_radar_session(session: RadarSession, out: str | Path) -> Path:
+    """Write ``rig.yaml``, ``scenes/<k>/<lidar>.pcd``, ``scenes/<k>/radar.csv`` and ``truth.json`` under ``out``."""
+    from radarcal.io.clouds import write_pcd
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "rig.yaml").write_text("# radarcal radar-lidar session (generated by `radarcal synth radar`)\n" + yaml.safe_dump(session.rig, sort_keys=False), encoding="utf-8")
+    for sc in session.scenes:
+        d = out / "scenes" / sc["name"]
+        d.mkdir(parents=True, exist_ok=True)
+        for lname, pts in sc["clouds"].items():
+            write_pcd(d / f"{lname}.pcd", pts)
+        r = sc["radar"]
+        lines = ["radar,x,y,rcs,velocity"] + [f"{n},{x:.9f},{y:.9f},{c:.2f},{v:.3f}" for n, (x, y), c, v in zip(r["radar"], r["xy"], r["rcs"], r["velocity"])]
+        (d / "radar.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    (out / "truth.json").write_text(json.dumps(session.truth, indent=1), encoding="utf-8")
+    return out
