@@ -9,6 +9,7 @@ import click
 import typer
 
 from radarcal.cli import bundle_cmd, synth_field_cmd
+from radarcal.cli import run_cmd
 from radarcal.errors import InputError
 
 app = typer.Typer(name="radarcal", help="Calibration for camera / LiDAR / mmWave-radar rigs.", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -26,6 +27,8 @@ app.add_typer(bundle_cmd.app, name="bundle")
 synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
 app.add_typer(synth_app, name="synth")
 synth_app.command("field")(synth_field_cmd.synth_field)
+app.command("run")(run_cmd.run)
+app.command("hero-offset")(run_cmd.hero_offset)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,7 +21,7 @@ import numpy as np
 from radarcal.camera import Camera
 from radarcal.geometry import transform_points
 
-__all__ = ["DepthImage", "BoxDepth", "make_depth_image", "robust_depth", "CloudQueue"]
+__all__ = ["DepthImage", "BoxDepth", "make_depth_image", "robust_depth", "CloudQueue", "SurfaceFilter"]
 
 
 @dataclass
@@ -83,6 +83,49 @@ def make_depth_image(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.n
     return DepthImage(t, lin_sorted[first], depth, len(pts), w, h)
 
 
+class SurfaceFilter:
+    """Drops LiDAR returns from the field surface (ground, highland tops, ramps) before they enter a depth image, so
+    a box's depth comes from what stands on the field (robots, structures) and not from the terrain around or in
+    front of it (a robot half hidden behind a highland edge would otherwise take the highland's depth).
+
+    The surface height is rasterised once (``res`` m cells, from ``surface_z``) and looked up per point, so the
+    filter costs a transform and a gather per cloud. The raster is max-filtered over ``wall_margin`` so that returns
+    from the vertical walls of raised areas (the surface height jumps there) count as terrain too. Without a field
+    model the surface is the plane z = 0."""
+
+    def __init__(self, T_field_lidar: np.ndarray, surface_z=None, bounds: tuple[float, float, float, float] = (-2.0, -2.0, 30.0, 17.0), min_height: float = 0.08, res: float = 0.05, wall_margin: float = 0.1):
+        self.T = np.asarray(T_field_lidar, float)
+        self.min_height = float(min_height)
+        self.res = float(res)
+        self.x0, self.y0, x1, y1 = bounds
+        nx, ny = int(np.ceil((x1 - self.x0) / res)), int(np.ceil((y1 - self.y0) / res))
+        if surface_z is None:
+            self.grid = np.zeros((ny, nx), np.float32)
+        else:
+            gx = self.x0 + (np.arange(nx) + 0.5) * res
+            gy = self.y0 + (np.arange(ny) + 0.5) * res
+            xx, yy = np.meshgrid(gx, gy)
+            z = np.asarray(surface_z(np.column_stack([xx.ravel(), yy.ravel()])), float)
+            grid = np.where(np.isfinite(z), z, 0.0).reshape(ny, nx)
+            k = 2 * int(np.ceil(wall_margin / res)) + 1
+            if k > 1:
+                from scipy.ndimage import maximum_filter
+
+                grid = maximum_filter(grid, size=k, mode="nearest")
+            self.grid = grid.astype(np.float32)
+
+    def heights(self, points_lidar: np.ndarray) -> np.ndarray:
+        """Height of each point above the surface under it (m)."""
+        p = transform_points(self.T, np.asarray(points_lidar, np.float32))
+        ix = np.clip(((p[:, 0] - self.x0) / self.res).astype(np.int64), 0, self.grid.shape[1] - 1)
+        iy = np.clip(((p[:, 1] - self.y0) / self.res).astype(np.int64), 0, self.grid.shape[0] - 1)
+        return p[:, 2] - self.grid[iy, ix]
+
+    def __call__(self, points_lidar: np.ndarray) -> np.ndarray:
+        """Mask of the points to keep (above the surface by ``min_height``)."""
+        return self.heights(points_lidar) > self.min_height
+
+
 @dataclass
 class BoxDepth:
     depth: float  # camera-frame z (m)
@@ -122,7 +165,8 @@ def robust_depth(values: np.ndarray, min_points: int = 3, min_fraction: float = 
 class CloudQueue:
     """The last clouds as depth images, bounded by ``max_points`` (sum of cloud sizes) and ``max_age_s``."""
 
-    def __init__(self, camera: Camera, T_cam_lidar: np.ndarray, max_points: int = 200_000, max_age_s: float = 1.0, min_box_points: int = 3):
+    def __init__(self, camera: Camera, T_cam_lidar: np.ndarray, max_points: int = 200_000, max_age_s: float = 1.0, min_box_points: int = 3, point_filter=None):
+        self.point_filter = point_filter  # e.g. a SurfaceFilter: points -> keep mask
         self.camera = camera
         self.T_cam_lidar = np.asarray(T_cam_lidar, float)
         self.max_points = int(max_points)
@@ -136,7 +180,11 @@ class CloudQueue:
         return len(self.images)
 
     def push(self, t: float, points_lidar: np.ndarray) -> DepthImage:
+        n = len(points_lidar)
+        if self.point_filter is not None and n:
+            points_lidar = points_lidar[self.point_filter(points_lidar)]
         img = make_depth_image(self.camera, self.T_cam_lidar, points_lidar, t)
+        img.n_points = n  # the budget counts what the sensor delivered
         self.images.append(img)
         self.points += img.n_points
         self.expire(t)

@@ -3,8 +3,9 @@
 State ``[x, y, vx, vy]`` in the field frame; process noise = white acceleration of spectral density
 ``accel_sigma**2``; measurement = field (x, y) with the localiser's sigma. A measurement whose squared
 Mahalanobis distance exceeds ``gate_chi2`` (default 13.8 = chi2(2) at 99.9 %) is rejected; after
-``reinit_after`` consecutive rejections the track is restarted at the measurement (the robot really is there:
-a respawn, or a track that locked on a wrong detection). Tracks unseen for ``max_coast_s`` are dropped.
+``reinit_after`` consecutive rejections (1/3 s at 30 fps) the track is restarted at the measurement (the robot really is there:
+a respawn, or a track that locked on a wrong detection); a depth measurement that disagrees with a track fed only
+by ground-ray fixes restarts it at once. Tracks unseen for ``max_coast_s`` are dropped.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ class Track:
 
 
 class TrackManager:
-    def __init__(self, accel_sigma: float = 3.0, gate_chi2: float = 13.8, reinit_after: int = 3, max_coast_s: float = 1.0, init_speed_sigma: float = 2.0):
+    def __init__(self, accel_sigma: float = 3.0, gate_chi2: float = 13.8, reinit_after: int = 10, max_coast_s: float = 1.0, init_speed_sigma: float = 2.0):
         self.accel_sigma = float(accel_sigma)
         self.gate_chi2 = float(gate_chi2)
         self.reinit_after = int(reinit_after)
@@ -88,7 +89,9 @@ class TrackManager:
             if d2 > self.gate_chi2:
                 tr.rejected += 1
                 tr.n_rejected += 1
-                if tr.rejected >= self.reinit_after:
+                # a LiDAR-depth fix outranks a track that only ever had ground-ray fixes (terrain can hide a robot's
+                # feet and pull the ground ray short by metres); otherwise restart after consistent rejections
+                if tr.rejected >= self.reinit_after or (source == "depth" and tr.source == "ground"):
                     self._new(label, xy, sigma, t, source)
                 continue
             K = tr.P[:, :2] @ np.linalg.inv(S)

@@ -80,7 +80,7 @@ def test_lidar_depth_localisation_of_simulated_robots(station):
 
 def test_kalman_tracks_smooth_gate_and_reinit():
     rng = np.random.default_rng(3)
-    tm = TrackManager(accel_sigma=1.0)
+    tm = TrackManager(accel_sigma=1.0, reinit_after=3)
     t = np.arange(0, 6, 1 / 30)
     truth = np.column_stack([2 + 1.5 * t, 5 + 0.5 * t])
     raw_err, filt_err = [], []
