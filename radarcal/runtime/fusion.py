@@ -205,10 +205,11 @@ class CloudQueue:
         self.images.clear()
         self.points = 0
 
-    def depth_in_box(self, xyxy, t: float | None = None, shrink: float = 0.1) -> BoxDepth | None:
+    def depth_in_box(self, xyxy, t: float | None = None, shrink: float = 0.1, max_age_s: float | None = None) -> BoxDepth | None:
         """Robust depth for a detection box from the newest depth image, falling back to older ones while the box
-        holds fewer than ``min_box_points`` points (their points are pooled, newest first). ``shrink`` trims that
-        fraction of the box width/height on each side (box edges carry background)."""
+        holds fewer than ``min_box_points`` points (their points are pooled, newest first), back to ``max_age_s``
+        (default: the queue's age limit; a moving robot's old points are in the wrong place, so the loop uses a
+        shorter limit than the queue). ``shrink`` trims that fraction of the box width/height on each side."""
         if not self.images:
             return None
         x1, y1, x2, y2 = (float(v) for v in xyxy)
@@ -218,8 +219,9 @@ class CloudQueue:
         pooled = []
         n = 0
         used = 0
+        limit = self.max_age_s if max_age_s is None else min(float(max_age_s), self.max_age_s)
         for img in reversed(self.images):
-            if t_now - img.t > self.max_age_s:
+            if t_now - img.t > limit:
                 break
             vals = img.values_in_box(x1, y1, x2, y2)
             used += 1

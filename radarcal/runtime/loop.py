@@ -38,6 +38,7 @@ class RunConfig:
     visible_depth_factor: float = 0.85
     cloud_queue_points: int = 200_000
     cloud_queue_age_s: float = 1.0
+    depth_max_age_s: float = 0.5  # oldest cloud a box depth may come from (robots move ~1.5 m/s)
     min_score: float = 0.25
     max_coast_s: float = 1.0
     accel_sigma: float = 3.0
@@ -56,6 +57,7 @@ class RunConfig:
             robot_radius_m=float(rt.get("robot_radius_m", cls.robot_radius_m)),
             cloud_queue_points=int(rt.get("cloud_queue_points", cls.cloud_queue_points)),
             cloud_queue_age_s=float(rt.get("cloud_queue_age_s", cls.cloud_queue_age_s)),
+            depth_max_age_s=float(rt.get("depth_max_age_s", cls.depth_max_age_s)),
             hero_range_offset_m=float(rt.get("hero_range_offset_m", 0.0)),
             team=str(rt.get("team", "red")),
         )
@@ -154,7 +156,7 @@ class Pipeline:
         if self.queue is not None:
             self.queue.expire(t)
             for i, d in enumerate(dets):
-                bd = self.queue.depth_in_box(d.xyxy, t)
+                bd = self.queue.depth_in_box(d.xyxy, t, max_age_s=self.cfg.depth_max_age_s)
                 if bd is not None:
                     depth[i], dsig[i] = bd.depth, bd.sigma
         toc = time.perf_counter()

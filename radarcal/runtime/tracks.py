@@ -4,8 +4,8 @@ State ``[x, y, vx, vy]`` in the field frame; process noise = white acceleration 
 ``accel_sigma**2``; measurement = field (x, y) with the localiser's sigma. A measurement whose squared
 Mahalanobis distance exceeds ``gate_chi2`` (default 13.8 = chi2(2) at 99.9 %) is rejected; after
 ``reinit_after`` consecutive rejections (1/3 s at 30 fps) the track is restarted at the measurement (the robot really is there:
-a respawn, or a track that locked on a wrong detection); a depth measurement that disagrees with a track fed only
-by ground-ray fixes restarts it at once. Tracks unseen for ``max_coast_s`` are dropped.
+a respawn, or a track that locked on a wrong detection); a depth measurement that disagrees with a track that never had
+a depth fix (only ground-ray fixes) restarts it at once. Tracks unseen for ``max_coast_s`` are dropped.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ class Track:
     rejected: int = 0  # consecutive gated-out measurements
     n_updates: int = 1
     n_rejected: int = 0
+    n_depth: int = 0  # accepted LiDAR-depth fixes
     extra: dict = field(default_factory=dict)
 
     @property
@@ -79,7 +80,7 @@ class TrackManager:
             sigma = float(sigma) if np.isfinite(sigma) and sigma > 0 else 0.3
             tr = self.tracks.get(label)
             if tr is None or t - tr.t_update > self.max_coast_s:
-                self._new(label, xy, sigma, t, source)
+                self._new(label, xy, sigma, t, source).n_depth = int(source == "depth")
                 continue
             self._predict(tr, t)
             R = np.eye(2) * sigma**2
@@ -91,8 +92,8 @@ class TrackManager:
                 tr.n_rejected += 1
                 # a LiDAR-depth fix outranks a track that only ever had ground-ray fixes (terrain can hide a robot's
                 # feet and pull the ground ray short by metres); otherwise restart after consistent rejections
-                if tr.rejected >= self.reinit_after or (source == "depth" and tr.source == "ground"):
-                    self._new(label, xy, sigma, t, source)
+                if tr.rejected >= self.reinit_after or (source == "depth" and tr.n_depth == 0):
+                    self._new(label, xy, sigma, t, source).n_depth = int(source == "depth")
                 continue
             K = tr.P[:, :2] @ np.linalg.inv(S)
             tr.x = tr.x + K @ y
@@ -102,6 +103,7 @@ class TrackManager:
             tr.rejected = 0
             tr.source = source
             tr.n_updates += 1
+            tr.n_depth += source == "depth"
         for label in [k for k, tr in self.tracks.items() if t - tr.t_update > self.max_coast_s]:
             del self.tracks[label]
         for tr in self.tracks.values():
