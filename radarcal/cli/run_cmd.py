@@ -31,6 +31,7 @@ def run(
     lidar: str = typer.Option(None, "--lidar", help="LiDAR name in the bundle (default: the only one with an extrinsic)."),
     team: str = typer.Option(None, "--team", help="Our colour red|blue (default: bundle runtime.team, then the referee link)."),
     season: int = typer.Option(None, "--season", help="Referee protocol season (0x0305 layout, rate limits); default bundle runtime.referee_season."),
+    sentry_xy: str = typer.Option(None, "--sentry-xy", help="Our sentry's field position X,Y (m) when it is not tracked."),
     max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
@@ -57,7 +58,15 @@ def run(
     b = load_bundle(bundle)
     has_clouds = not no_lidar and ((rep is not None and bool(rep.clouds)) or clouds is not None)
     cam_name, lidar_name = pick_frames(b, camera or (rep.meta.get("camera") if rep else None), lidar or (rep.meta.get("lidar") if rep and has_clouds else None), has_clouds)
-    cfg = RunConfig.from_bundle(b, team=team, season=season)
+    sxy = None
+    if sentry_xy:
+        try:
+            sxy = tuple(float(v) for v in sentry_xy.split(","))
+        except ValueError:
+            sxy = ()
+        if len(sxy) != 2:
+            raise InputError("--sentry-xy", f"expected X,Y in metres, got {sentry_xy!r}")
+    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy)
     pipe = Pipeline(b, cam_name, lidar_name if has_clouds else None, cfg)
 
     if detector is not None:
