@@ -346,6 +346,7 @@ def pick_frames(bundle: Bundle, camera: str | None, lidar: str | None, need_lida
         if len(cams) != 1:
             raise InputError(bundle.path, f"bundle has {len(cams)} cameras ({', '.join(cams) or 'none'}): choose one with --camera")
         camera = cams[0]
+    bundle.camera(camera)  # InputError naming the bundle when the camera is not there
     if not bundle.has_T("field", camera):
         raise InputError(bundle.path, f"no field pose for {camera!r} (run `radarcal field-pnp` first: T_field_{camera} is missing)")
     if need_lidar and lidar is None:
