@@ -40,7 +40,7 @@ def run(
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
     from radarcal.bundle import load_bundle
     from radarcal.runtime.detector import DetectionsFile, OnnxDetector, read_class_names
-    from radarcal.runtime.loop import Pipeline, RunConfig, evaluate_tracks, pick_frames
+    from radarcal.runtime.loop import OnlineEvaluator, Pipeline, RunConfig, pick_frames
     from radarcal.runtime.loop import run as run_loop
     from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, open_replay
 
@@ -90,17 +90,18 @@ def run(
         from radarcal.runtime.serial_link import SerialLink
 
         link = SerialLink(serial, season=cfg.season).start()
+    evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     try:
         summary = run_loop(pipe, merge_by_time(frames, cloud_src, cloud_offset), detect, out, minimap, link, status=not quiet and not as_json,
-                           max_frames=max_frames, keep_results=rep is not None and rep.truth is not None)  # fmt: skip
+                           max_frames=max_frames, on_frame=evaluator)  # fmt: skip
     finally:
         if link is not None:
             link.close()
         if cloud_src is not None and hasattr(cloud_src, "close"):
             cloud_src.close()
-    results = summary.pop("results")
-    if results is not None:
-        summary["accuracy"] = evaluate_tracks(results, rep.truth_by_frame())
+    summary.pop("results")
+    if evaluator is not None:
+        summary["accuracy"] = evaluator.summary()
     summary.update({"bundle": str(bundle), "camera": cam_name, "lidar": lidar_name if has_clouds else None, "out": str(out) if out else None,
                     "minimap": str(minimap) if minimap else None, "team": cfg.team, "season": cfg.season})  # fmt: skip
     if link is not None:

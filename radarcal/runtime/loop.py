@@ -25,7 +25,7 @@ from radarcal.runtime.fusion import CloudQueue, SurfaceFilter
 from radarcal.runtime.localise import Localiser
 from radarcal.runtime.tracks import TrackManager
 
-__all__ = ["RunConfig", "RobotOut", "FrameResult", "Pipeline", "Minimap", "StageTimer", "run", "pick_frames", "evaluate_tracks"]
+__all__ = ["RunConfig", "RobotOut", "FrameResult", "Pipeline", "Minimap", "StageTimer", "run", "pick_frames", "evaluate_tracks", "OnlineEvaluator"]
 
 STAGES = ("cloud", "detect", "depth", "localise", "track", "output")
 
@@ -339,6 +339,56 @@ def evaluate_tracks(results: Iterable[dict], truth_by_frame: dict[str, dict]) ->
             "p95_m": float(np.percentile(e, 95)) if len(e) else None, "max_m": float(e.max()) if len(e) else None, "by_source": by}  # fmt: skip
 
 
+class OnlineEvaluator:
+    """Accumulates horizontal errors against ``truth.jsonl`` while the loop runs, reading the truth lazily in frame
+    order (flat memory on long replays: only floats are kept)."""
+
+    def __init__(self, truth_path: Path):
+        self._f = open(truth_path, encoding="utf-8")
+        self._pending: dict[str, dict] = {}
+        self.errors: list[float] = []
+        self.sources: list[str] = []
+        self.visible = 0
+        self.missing = 0
+
+    def _truth(self, frame: str) -> dict | None:
+        if frame in self._pending:
+            return self._pending.pop(frame)
+        for line in self._f:
+            if not line.strip():
+                continue
+            d = json.loads(line)
+            if str(d.get("frame")) == frame:
+                return d
+            self._pending[str(d.get("frame"))] = d
+            if len(self._pending) > 1000:  # frames without results (e.g. --max-frames): do not hoard
+                self._pending.pop(next(iter(self._pending)))
+        return None
+
+    def __call__(self, n: int, res: FrameResult) -> None:
+        tr = self._truth(res.frame)
+        if tr is None:
+            return
+        out = {r.label: r for r in res.robots}
+        for rob in tr["robots"]:
+            if not rob.get("visible", True):
+                continue
+            self.visible += 1
+            o = out.get(rob["label"])
+            if o is None:
+                self.missing += 1
+                continue
+            self.errors.append(float(np.hypot(o.p_field[0] - rob["p_field"][0], o.p_field[1] - rob["p_field"][1])))
+            self.sources.append(o.source)
+
+    def summary(self) -> dict:
+        self._f.close()
+        e, src = np.asarray(self.errors), np.asarray(self.sources)
+        by = {s: {"n": int((src == s).sum()), "median_m": float(np.median(e[src == s]))} for s in sorted(set(self.sources))}
+        return {"visible": self.visible, "located": self.visible - self.missing, "missing": self.missing, "median_m": float(np.median(e)) if len(e) else None,
+                "p95_m": float(np.percentile(e, 95)) if len(e) else None, "max_m": float(e.max()) if len(e) else None, "by_source": by}  # fmt: skip
+
+
 # --- the loop with I/O --------------------------------------------------------------------------------------------------
 def pick_frames(bundle: Bundle, camera: str | None, lidar: str | None, need_lidar: bool) -> tuple[str, str | None]:
     cams = list(bundle.cameras)
@@ -405,7 +455,10 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
                     writer.write(img)
                 else:
                     for r in res.robots:
-                        mm.history.setdefault(r.label, []).append((res.t, float(r.p_field[0]), float(r.p_field[1])))
+                        hist = mm.history.setdefault(r.label, [])
+                        hist.append((res.t, float(r.p_field[0]), float(r.p_field[1])))
+                        if len(hist) > 6000:  # whole-run trails for the PNG, bounded (~200 s per robot)
+                            del hist[:3000]
             if link is not None:
                 for cmd, data, key in pipeline.referee_messages(res, team):
                     link.send(cmd, data, key)
