@@ -20,7 +20,7 @@ import numpy as np
 
 from radarcal.camera import Camera
 
-__all__ = ["Localiser", "Located", "flat_ground_intersect"]
+__all__ = ["Localiser", "Located", "RayTable", "flat_ground_intersect"]
 
 
 def flat_ground_intersect(origins: np.ndarray, dirs: np.ndarray, z: float = 0.0) -> np.ndarray:
@@ -30,6 +30,56 @@ def flat_ground_intersect(origins: np.ndarray, dirs: np.ndarray, z: float = 0.0)
         s = (z - o[:, 2]) / d[:, 2]
     s = np.where((s > 0) & np.isfinite(s), s, np.nan)
     return o + d * s[:, None]
+
+
+class RayTable:
+    """Pixel -> undistorted normalised coordinates by bilinear interpolation in a table built once with
+    :meth:`Camera.unproject` (every ``step`` px, one step beyond the image). ``Camera.unproject`` inverts the
+    distortion with 20 Newton steps from the distorted point; starting from the table's interpolated value, one
+    Newton step on :meth:`Camera.distort` (the one camera model) reaches the same answer to ~1e-7 (two: 1e-12) at a
+    fraction of the cost."""
+
+    def __init__(self, camera: Camera, step: int = 8, refine: int = 1):
+        self.camera = camera
+        self.refine = int(refine)
+        self.K_inv = np.linalg.inv(camera.K)
+        self.step = int(step)
+        w, h = camera.image_size
+        self.u0, self.v0 = -self.step, -self.step
+        gu = np.arange(self.u0, w + 2 * self.step, self.step, dtype=float)
+        gv = np.arange(self.v0, h + 2 * self.step, self.step, dtype=float)
+        uu, vv = np.meshgrid(gu, gv)
+        rays = camera.unproject(np.column_stack([uu.ravel(), vv.ravel()]))
+        self.xy = (rays[:, :2] / rays[:, 2:3]).reshape(len(gv), len(gu), 2)
+
+    def normalised(self, uv: np.ndarray) -> np.ndarray:
+        uv = np.asarray(uv, float).reshape(-1, 2)
+        fu = (uv[:, 0] - self.u0) / self.step
+        fv = (uv[:, 1] - self.v0) / self.step
+        iu = np.clip(np.floor(fu).astype(np.int64), 0, self.xy.shape[1] - 2)
+        iv = np.clip(np.floor(fv).astype(np.int64), 0, self.xy.shape[0] - 2)
+        a = (fu - iu)[:, None]
+        b = (fv - iv)[:, None]
+        g = self.xy
+        xy = g[iv, iu] * (1 - a) * (1 - b) + g[iv, iu + 1] * a * (1 - b) + g[iv + 1, iu] * (1 - a) * b + g[iv + 1, iu + 1] * a * b
+        if self.refine:
+            xyd = uv @ self.K_inv[:2, :2].T + self.K_inv[:2, 2]
+            dist = self.camera.distort
+            eps = 1e-7
+            for _ in range(self.refine):
+                f = dist(xy) - xyd
+                jx = (dist(xy + [eps, 0]) - dist(xy - [eps, 0])) / (2 * eps)
+                jy = (dist(xy + [0, eps]) - dist(xy - [0, eps])) / (2 * eps)
+                det = jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
+                det = np.where(np.abs(det) < 1e-12, 1e-12, det)
+                xy = xy - np.column_stack([(jy[:, 1] * f[:, 0] - jy[:, 0] * f[:, 1]) / det, (-jx[:, 1] * f[:, 0] + jx[:, 0] * f[:, 1]) / det])
+        return xy
+
+    def rays(self, uv: np.ndarray) -> np.ndarray:
+        """Unit rays (N,3) in the camera frame."""
+        xy = self.normalised(uv)
+        r = np.column_stack([xy, np.ones(len(xy))])
+        return r / np.linalg.norm(r, axis=1, keepdims=True)
 
 
 @dataclass
@@ -49,6 +99,7 @@ class Localiser:
         self.visible_depth_factor = float(visible_depth_factor)
         self.pixel_sigma = float(pixel_sigma)
         self.cam_origin = self.T_field_cam[:3, 3].copy()
+        self.ray_table = RayTable(camera)
 
     def surface_z(self, xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, float).reshape(-1, 2)
@@ -58,7 +109,7 @@ class Localiser:
         return np.where(np.isfinite(z), z, 0.0)
 
     def rays_field(self, uv: np.ndarray) -> np.ndarray:
-        rays_cam = self.camera.unproject(uv)
+        rays_cam = self.ray_table.rays(uv)
         return rays_cam @ self.T_field_cam[:3, :3].T
 
     def _push_back(self, p: np.ndarray, dist: float) -> np.ndarray:
@@ -72,7 +123,7 @@ class Localiser:
     def from_depth(self, uv: np.ndarray, depth_z: np.ndarray) -> np.ndarray:
         """Box-centre pixels (K,2) + camera-frame z (K,) -> robot centres (K,3) in the field."""
         uv = np.asarray(uv, float).reshape(-1, 2)
-        rays = self.camera.unproject(uv)
+        rays = self.ray_table.rays(uv)
         with np.errstate(divide="ignore", invalid="ignore"):
             p_cam = rays / rays[:, 2:3] * np.asarray(depth_z, float).reshape(-1, 1)
         p = p_cam @ self.T_field_cam[:3, :3].T + self.T_field_cam[:3, 3]

@@ -168,12 +168,13 @@ class Pipeline:
         live = self.tracks.update(t, meas)
         seen = {d.label: i for i, d in enumerate(dets)}
         robots = []
-        for tr in sorted(live, key=lambda tr: tr.label):
+        live = sorted(live, key=lambda tr: tr.label)
+        zs = self.localiser.surface_z(np.array([tr.xy for tr in live]).reshape(-1, 2)) if live else []
+        for tr, z in zip(live, zs):
             i = seen.get(tr.label)
             measured = i is not None and loc.source[i] != "none" and tr.t_update == t
             xy = tr.xy
-            z = float(self.localiser.surface_z(xy[None])[0])
-            robots.append(RobotOut(tr.label, np.array([xy[0], xy[1], z]), tr.source if measured else "predicted", tr.sigma,
+            robots.append(RobotOut(tr.label, np.array([xy[0], xy[1], float(z)]), tr.source if measured else "predicted", tr.sigma,
                                    float(depth[i]) if measured and np.isfinite(depth[i]) else None,
                                    dets[i].score if i is not None else None, loc.p_field[i] if measured else None))  # fmt: skip
         toc = time.perf_counter()
