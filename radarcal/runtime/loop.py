@@ -25,7 +25,7 @@ from radarcal.runtime.fusion import CloudQueue, SurfaceFilter
 from radarcal.runtime.localise import Localiser
 from radarcal.runtime.tracks import TrackManager
 
-__all__ = ["RunConfig", "RobotOut", "FrameResult", "Pipeline", "Minimap", "StageTimer", "run", "pick_frames", "evaluate_tracks", "OnlineEvaluator"]
+__all__ = ["RunConfig", "RobotOut", "FrameResult", "Pipeline", "Minimap", "StageTimer", "run", "pick_frames", "evaluate_tracks", "OnlineEvaluator", "limit_blas_threads"]
 
 STAGES = ("cloud", "detect", "depth", "localise", "track", "output")
 
@@ -410,6 +410,18 @@ def pick_frames(bundle: Bundle, camera: str | None, lidar: str | None, need_lida
     return camera, lidar
 
 
+def limit_blas_threads(n: int = 1):
+    """The loop's numpy work is many small (N,3)x(3,3) products: BLAS threads only add wake-up latency and, on a
+    busy or pinned CPU, can stall for tens of ms. Returns a context (no-op without ``threadpoolctl``)."""
+    import contextlib
+
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return contextlib.nullcontext()
+    return threadpool_limits(n, user_api="blas")
+
+
 def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = None, minimap_path: Path | None = None, link=None,
         status: bool = True, max_frames: int | None = None, keep_results: bool = False, on_frame: Callable | None = None) -> dict:  # fmt: skip
     """Run the loop over ``pairs`` (camera frame, new clouds). ``detect(frame) -> list[Detection]``.
@@ -429,6 +441,8 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
     tty = sys.stderr.isatty()
     t_start = time.perf_counter()
     last = None
+    blas = limit_blas_threads(1)
+    blas.__enter__()
     try:
         for frame, clouds in pairs:
             tic = time.perf_counter()
@@ -491,6 +505,7 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             if max_frames is not None and n >= max_frames:
                 break
     finally:
+        blas.__exit__(None, None, None)
         if out_f:
             out_f.close()
         if writer is not None:
