@@ -39,8 +39,9 @@ class DepthImage:
         img[self.pix] = self.depth
         return img.reshape(self.height, self.width)
 
-    def values_in_box(self, x1: float, y1: float, x2: float, y2: float) -> np.ndarray:
-        """Depths of the occupied pixels whose centres lie in the box [x1, x2] x [y1, y2]."""
+    def values_in_box(self, x1: float, y1: float, x2: float, y2: float, exclude: np.ndarray | None = None) -> np.ndarray:
+        """Depths of the occupied pixels whose centres lie in the box [x1, x2] x [y1, y2] and outside every
+        rectangle of ``exclude`` (K,4 xyxy)."""
         u0, v0 = max(int(np.ceil(x1)), 0), max(int(np.ceil(y1)), 0)
         u1, v1 = min(int(np.floor(x2)), self.width - 1), min(int(np.floor(y2)), self.height - 1)
         if u1 < u0 or v1 < v0 or not len(self.pix):
@@ -53,7 +54,14 @@ class DepthImage:
         if total == 0:
             return np.zeros(0, np.float32)
         starts = np.repeat(lo - np.concatenate(([0], np.cumsum(counts)[:-1])), counts)
-        return self.depth[starts + np.arange(total)]
+        idx = starts + np.arange(total)
+        if exclude is not None and len(exclude):
+            pix = self.pix[idx]
+            u, v = pix % self.width, pix // self.width
+            ex = np.asarray(exclude, float).reshape(-1, 4)
+            hit = (u[:, None] >= ex[:, 0]) & (u[:, None] <= ex[:, 2]) & (v[:, None] >= ex[:, 1]) & (v[:, None] <= ex[:, 3])
+            idx = idx[~hit.any(axis=1)]
+        return self.depth[idx]
 
 
 def make_depth_image(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.ndarray, t: float = 0.0, min_depth: float = 0.3) -> DepthImage:
@@ -91,10 +99,22 @@ class SurfaceFilter:
     The surface height is rasterised once (``res`` m cells, from ``surface_z``) and looked up per point, so the
     filter costs a transform and a gather per cloud. The raster is max-filtered over ``wall_margin`` so that returns
     from the vertical walls of raised areas (the surface height jumps there) count as terrain too. Without a field
-    model the surface is the plane z = 0."""
+    model the surface is the plane z = 0.
 
-    def __init__(self, T_field_lidar: np.ndarray, surface_z=None, bounds: tuple[float, float, float, float] = (-2.0, -2.0, 30.0, 17.0), min_height: float = 0.08, res: float = 0.05, wall_margin: float = 0.1):
+    ``structures`` (the field model's static boxes: bases, outposts — ``{"center": [x, y, z_bottom], "size":
+    [lx, ly, lz], "yaw"}``) are removed too, grown by ``structure_margin``: a robot behind an outpost must not take
+    the outpost's depth (with its own points gone, its box falls back to older clouds or to the ground ray, which
+    passes through structures)."""
+
+    def __init__(self, T_field_lidar: np.ndarray, surface_z=None, bounds: tuple[float, float, float, float] = (-2.0, -2.0, 30.0, 17.0), min_height: float = 0.08,
+                 res: float = 0.05, wall_margin: float = 0.1, structures: list[dict] | None = None, structure_margin: float = 0.1):  # fmt: skip
         self.T = np.asarray(T_field_lidar, float)
+        self.structures = []
+        for st in structures or []:
+            c = np.asarray(st["center"], float)
+            half = np.asarray(st["size"], float) / 2 + structure_margin
+            yaw = float(st.get("yaw", 0.0))
+            self.structures.append((c, half, np.cos(yaw), np.sin(yaw)))
         self.min_height = float(min_height)
         self.res = float(res)
         self.x0, self.y0, x1, y1 = bounds
@@ -114,16 +134,24 @@ class SurfaceFilter:
                 grid = maximum_filter(grid, size=k, mode="nearest")
             self.grid = grid.astype(np.float32)
 
-    def heights(self, points_lidar: np.ndarray) -> np.ndarray:
-        """Height of each point above the surface under it (m)."""
-        p = transform_points(self.T, np.asarray(points_lidar, np.float32))
+    def _heights(self, p: np.ndarray) -> np.ndarray:
         ix = np.clip(((p[:, 0] - self.x0) / self.res).astype(np.int64), 0, self.grid.shape[1] - 1)
         iy = np.clip(((p[:, 1] - self.y0) / self.res).astype(np.int64), 0, self.grid.shape[0] - 1)
         return p[:, 2] - self.grid[iy, ix]
 
+    def heights(self, points_lidar: np.ndarray) -> np.ndarray:
+        """Height of each point above the surface under it (m)."""
+        return self._heights(transform_points(self.T, np.asarray(points_lidar, np.float32)))
+
     def __call__(self, points_lidar: np.ndarray) -> np.ndarray:
-        """Mask of the points to keep (above the surface by ``min_height``)."""
-        return self.heights(points_lidar) > self.min_height
+        """Mask of the points to keep (above the surface by ``min_height`` and outside every structure)."""
+        p = transform_points(self.T, np.asarray(points_lidar, np.float32))
+        keep = self._heights(p) > self.min_height
+        for c, half, cs, sn in self.structures:
+            dx, dy = p[:, 0] - c[0], p[:, 1] - c[1]
+            inside = (np.abs(cs * dx + sn * dy) <= half[0]) & (np.abs(-sn * dx + cs * dy) <= half[1]) & (p[:, 2] - c[2] <= 2 * half[2]) & (p[:, 2] >= c[2] - 0.1)
+            keep &= ~inside
+        return keep
 
 
 @dataclass
@@ -205,11 +233,12 @@ class CloudQueue:
         self.images.clear()
         self.points = 0
 
-    def depth_in_box(self, xyxy, t: float | None = None, shrink: float = 0.1, max_age_s: float | None = None) -> BoxDepth | None:
+    def depth_in_box(self, xyxy, t: float | None = None, shrink: float = 0.1, max_age_s: float | None = None, exclude: np.ndarray | None = None) -> BoxDepth | None:
         """Robust depth for a detection box from the newest depth image, falling back to older ones while the box
         holds fewer than ``min_box_points`` points (their points are pooled, newest first), back to ``max_age_s``
         (default: the queue's age limit; a moving robot's old points are in the wrong place, so the loop uses a
-        shorter limit than the queue). ``shrink`` trims that fraction of the box width/height on each side."""
+        shorter limit than the queue). ``shrink`` trims that fraction of the box width/height on each side.
+        ``exclude``: rectangles (K,4) whose pixels are ignored — the boxes of robots standing in front of this one."""
         if not self.images:
             return None
         x1, y1, x2, y2 = (float(v) for v in xyxy)
@@ -223,7 +252,7 @@ class CloudQueue:
         for img in reversed(self.images):
             if t_now - img.t > limit:
                 break
-            vals = img.values_in_box(x1, y1, x2, y2)
+            vals = img.values_in_box(x1, y1, x2, y2, exclude)
             used += 1
             if len(vals):
                 pooled.append(vals)

@@ -131,7 +131,8 @@ class Pipeline:
             flt = None
             if cfg.surface_filter:
                 surf = self.field_model.surface_z if self.field_model is not None else None
-                flt = SurfaceFilter(self.T_field_cam @ bundle.T(camera, lidar), surf, min_height=cfg.surface_min_height_m)
+                structs = getattr(self.field_model, "structures", None) if self.field_model is not None else None
+                flt = SurfaceFilter(self.T_field_cam @ bundle.T(camera, lidar), surf, min_height=cfg.surface_min_height_m, structures=structs)
             self.queue = CloudQueue(self.camera, bundle.T(camera, lidar), cfg.cloud_queue_points, cfg.cloud_queue_age_s, point_filter=flt)
         self.localiser = Localiser(self.camera, self.T_field_cam, self.field_model, cfg.robot_radius_m, cfg.visible_depth_factor)
         self.tracks = TrackManager(accel_sigma=cfg.accel_sigma, max_coast_s=cfg.max_coast_s)
@@ -156,7 +157,11 @@ class Pipeline:
         if self.queue is not None:
             self.queue.expire(t)
             for i, d in enumerate(dets):
-                bd = self.queue.depth_in_box(d.xyxy, t, max_age_s=self.cfg.depth_max_age_s)
+                # robots standing nearer (box bottom lower in the image) and overlapping this box hide part of it:
+                # their pixels are not this robot's
+                b = boxes[i]
+                front = (boxes[:, 3] > b[3] + 2) & (boxes[:, 0] < b[2]) & (boxes[:, 2] > b[0]) & (boxes[:, 1] < b[3]) & (boxes[:, 3] > b[1])
+                bd = self.queue.depth_in_box(d.xyxy, t, max_age_s=self.cfg.depth_max_age_s, exclude=boxes[front] if front.any() else None)
                 if bd is not None:
                     depth[i], dsig[i] = bd.depth, bd.sigma
         toc = time.perf_counter()
