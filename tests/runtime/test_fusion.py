@@ -82,3 +82,55 @@ def test_queue_budget_age_and_fallback(station):
     assert len(q2) == 2 and q2.depth_in_box(box, t=0.7) is None
     q2.expire(5.0)
     assert len(q2) == 0 and q2.depth_in_box(box) is None
+
+
+def test_surface_filter_terrain_walls_and_structures(station):
+    from radarcal.runtime.fusion import SurfaceFilter
+
+    class Field:  # a 0.6 m platform over x 10..14, y 5..9 on flat ground
+        @staticmethod
+        def surface_z(xy):
+            return np.where((xy[:, 0] > 10) & (xy[:, 0] < 14) & (xy[:, 1] > 5) & (xy[:, 1] < 9), 0.6, 0.0)
+
+    T_field_lidar = station["T_field_cam"] @ station["T_cam_lidar"]
+    T_lidar_field = np.linalg.inv(T_field_lidar)
+    outpost = {"center": [20.0, 3.0, 0.0], "size": [0.6, 0.6, 1.3], "yaw": 0.3}
+    f = SurfaceFilter(T_field_lidar, Field.surface_z, structures=[outpost])
+    pts = np.array([
+        [5.0, 2.0, 0.01],     # ground: drop
+        [12.0, 7.0, 0.62],    # platform top: drop
+        [10.0, 7.0, 0.4],     # on the platform's wall (x = 10): drop
+        [12.0, 7.0, 1.0],     # a robot standing on the platform: keep
+        [5.0, 2.0, 0.3],      # a robot on the ground: keep
+        [20.1, 3.1, 0.9],     # the outpost: drop
+        [21.0, 3.0, 0.3],     # a robot beside the outpost: keep
+    ])  # fmt: skip
+    keep = f(transform_points(T_lidar_field, pts))
+    assert keep.tolist() == [False, False, False, True, True, False, True]
+    np.testing.assert_allclose(f.heights(transform_points(T_lidar_field, pts[[0, 3]])), [0.01, 0.4], atol=1e-5)
+
+
+def test_box_exclusion_rectangles(station):
+    cam, T = station["camera"], station["T_cam_lidar"]
+    from radarcal.geometry import invert_T
+
+    T_lidar_field = invert_T(station["T_field_cam"] @ T)
+    q = CloudQueue(cam, T)
+    near = robot_cloud((12.0, 7.4), height=0.8, n=400)  # tall enough to hide the far robot's lower part
+    far = robot_cloud((16.0, 7.3), n=400)
+    q.push(0.0, transform_points(T_lidar_field, np.vstack([near, far])))
+    T_cam_field = invert_T(station["T_field_cam"])
+
+    def box(c, h=0.45):
+        ang = np.linspace(0, 2 * np.pi, 32)
+        p = np.vstack([np.column_stack([c[0] + 0.25 * np.cos(ang), c[1] + 0.25 * np.sin(ang), np.full(32, z)]) for z in (0, h)])
+        uv, _ = cam.project(transform_points(T_cam_field, p))
+        return np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
+
+    b_near, b_far = box((12.0, 7.4), 0.8), box((16.0, 7.3))
+    assert b_near[3] > b_far[3]  # the nearer robot's box reaches lower in the image
+    z_far = transform_points(T_cam_field, np.array([[15.8, 7.3, 0.3]]))[0, 2]
+    plain = q.depth_in_box(b_far)
+    excl = q.depth_in_box(b_far, exclude=b_near[None])
+    assert plain.depth < z_far - 3  # the occluding robot wins without exclusion
+    assert abs(excl.depth - z_far) < 0.3
