@@ -163,3 +163,25 @@ def test_run_bad_bundle_and_detections(sample, tmp_path, capsys):
     b.write_text((sample / "calib.yaml").read_text().replace("T_field_cam0:", "T_fieldX_cam0:").replace("target: field", "target: fieldX"))
     assert main(["run", "--replay", str(sample), "--bundle", str(b)]) == 2
     assert "no field pose for 'cam0'" in capsys.readouterr().err
+
+
+def test_hero_offset_from_a_recording(sample, tmp_path, capsys):
+    bundle = tmp_path / "calib.yaml"
+    shutil.copy(sample / "calib.yaml", bundle)
+    assert main(["hero-offset", "--bundle", str(bundle), "--replay", str(sample), "--team", "blue", "--actual", "10.0", "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    # the measured range is the median over frames of |blue_1 - red_outpost|: compare with the truth's own median
+    from radarcal.field import FieldModel
+
+    fm = FieldModel.from_dict(load_bundle(bundle).field_model)
+    outpost = fm.landmarks["red_outpost"][:2]
+    truth = [np.hypot(*(np.array(r["p_field"][:2]) - outpost)) for ln in (sample / "truth.jsonl").read_text().splitlines()
+             for r in json.loads(ln)["robots"] if r["label"] == "blue_1" and r["visible"]]  # fmt: skip
+    assert s["frames_with_hero"] > 100 and abs(s["measured_m"] - np.median(truth)) < 0.15
+    assert s["hero_range_offset_m"] == pytest.approx(10.0 - s["measured_m"])
+    assert main(["hero-offset", "--bundle", str(bundle), "--replay", str(sample), "--team", "blue", "--marker", "blue_base", "--json"]) == 0
+    s2 = json.loads(capsys.readouterr().out)
+    assert s2["actual_m"] == pytest.approx(np.hypot(*(fm.landmarks["blue_base"][:2] - outpost)))
+    assert main(["hero-offset", "--bundle", str(bundle), "--replay", str(sample), "--marker", "nope", "--team", "blue"]) == 2
+    assert "no landmark 'nope'" in capsys.readouterr().err
+    assert main(["hero-offset", "--bundle", str(bundle), "--measured", "3"]) == 2  # neither --actual nor --marker
