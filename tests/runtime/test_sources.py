@@ -158,3 +158,21 @@ def test_folders_times_and_pairing(tmp_path):
         list(image_folder_frames(tmp_path / "img"))
     with pytest.raises(InputError):
         open_clouds(str(tmp_path / "missing"))
+
+
+def test_video_file_frames(tmp_path):
+    import cv2
+
+    from radarcal.runtime.sources import open_camera
+
+    path = tmp_path / "v.mp4"
+    w = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (64, 48))
+    for i in range(10):
+        w.write(np.full((48, 64, 3), 20 * i, np.uint8))
+    w.release()
+    frames = list(open_camera(str(path)))
+    assert len(frames) == 10
+    assert [f.t for f in frames] == pytest.approx([i / 25 for i in range(10)], abs=1e-3)
+    assert abs(int(frames[5].load().mean()) - 100) < 6
+    with pytest.raises(InputError):
+        list(open_camera(str(tmp_path / "missing.mp4")))
