@@ -19,7 +19,6 @@ and memory over a 10 000-frame replay.
 
 from __future__ import annotations
 
-import json
 import os
 import resource
 import sys

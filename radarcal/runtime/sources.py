@@ -179,7 +179,7 @@ def open_camera(spec: str, fps: float = 30.0) -> Iterator[CameraFrame]:
     if p.is_dir():
         return image_folder_frames(p, fps)
     if p.is_file() or spec.isdigit() or "://" in spec:
-        return video_frames(spec, None if p.is_dir() else None)
+        return video_frames(spec)
     raise InputError(spec, "camera source not found (expected an image folder, a video file, a device index or a URL)")
 
 
