@@ -100,6 +100,9 @@ def run(
         if cloud_src is not None and hasattr(cloud_src, "close"):
             cloud_src.close()
     summary.pop("results")
+    from radarcal.runtime.sources import SKIPPED
+
+    summary["skipped_inputs"] = len(SKIPPED)
     if evaluator is not None:
         summary["accuracy"] = evaluator.summary()
     summary.update({"bundle": str(bundle), "camera": cam_name, "lidar": lidar_name if has_clouds else None, "out": str(out) if out else None,
@@ -116,6 +119,8 @@ def run(
         acc = s.get("accuracy")
         if acc and acc["median_m"] is not None:
             typer.echo(f"  vs truth: {acc['located']}/{acc['visible']} visible robots located; error median {acc['median_m']:.3f} m, p95 {acc['p95_m']:.3f} m, max {acc['max_m']:.3f} m")
+        if s.get("bad_frames") or s.get("skipped_inputs"):
+            typer.echo(f"  skipped: {s['bad_frames']} unreadable frames, {s['skipped_inputs']} unreadable clouds/messages (warnings on stderr)")
         if s.get("out"):
             typer.echo(f"  tracks -> {s['out']}")
         if s.get("minimap"):

@@ -443,6 +443,7 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
     results = [] if keep_results else None
     n = 0
     located = {"depth": 0, "ground": 0, "predicted": 0}
+    bad_frames = 0
     tty = sys.stderr.isatty()
     t_start = time.perf_counter()
     last = None
@@ -455,7 +456,12 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
                 pipeline.add_cloud(c.t, c.points)
             toc = time.perf_counter()
             timings = {"cloud": (toc - tic) * 1e3}
-            dets = detect(frame)
+            try:
+                dets = detect(frame)
+            except InputError as e:  # an unreadable image: report, locate nothing new this frame, keep going
+                bad_frames += 1
+                sys.stderr.write(f"warning: {e} (frame skipped)\n")
+                dets = []
             tic = time.perf_counter()
             timings["detect"] = (tic - toc) * 1e3
             team = pipeline.cfg.team
@@ -523,4 +529,4 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             raise InputError(minimap_path, "cannot write minimap image")
     wall = time.perf_counter() - t_start
     return {"frames": n, "wall_s": wall, "fps": n / wall if wall > 0 else 0.0, "latency_ms": timer.summary(), "robot_frames": located,
-            "clouds": pipeline.clouds_in, "results": results}  # fmt: skip
+            "clouds": pipeline.clouds_in, "bad_frames": bad_frames, "results": results}  # fmt: skip

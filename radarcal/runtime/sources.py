@@ -54,9 +54,23 @@ __all__ = [
     "open_clouds",
     "merge_by_time",
     "IMAGE_SUFFIXES",
+    "SKIPPED",
 ]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
+
+
+def _warn(err: Exception) -> None:
+    """A bad input file in the middle of a stream is reported and skipped: the match loop must not stop."""
+    import sys
+
+    SKIPPED.append(str(err))
+    if len(SKIPPED) > 1000:
+        del SKIPPED[:500]
+    sys.stderr.write(f"warning: {err} (skipped)\n")
+
+
+SKIPPED: list[str] = []  # problems skipped so far (bounded), for the run summary
 
 
 @dataclass
@@ -184,10 +198,18 @@ def open_camera(spec: str, fps: float = 30.0) -> Iterator[CameraFrame]:
 
 
 # --- cloud folders ---------------------------------------------------------------------------------------------------
-def cloud_folder(folder: str | os.PathLike, hz: float = 10.0) -> Iterator[CloudFrame]:
-    for t, p in _timed_files(Path(folder), CLOUD_SUFFIXES, hz, "point-cloud"):
-        c = read_cloud(p)
+def _read_clouds(items: list[tuple[float, Path]]) -> Iterator[CloudFrame]:
+    for t, p in items:
+        try:
+            c = read_cloud(p)
+        except InputError as e:
+            _warn(e)
+            continue
         yield CloudFrame(t, c.points, c.intensity, p.name)
+
+
+def cloud_folder(folder: str | os.PathLike, hz: float = 10.0) -> Iterator[CloudFrame]:
+    return _read_clouds(_timed_files(Path(folder), CLOUD_SUFFIXES, hz, "point-cloud"))
 
 
 # --- ROS bags --------------------------------------------------------------------------------------------------------
@@ -390,7 +412,8 @@ def bag_clouds(path: str | os.PathLike, topic: str | None = None, t0: float | No
                         pts = np.column_stack([p["x"], p["y"], p["z"]]).astype(np.float32)
                         inten = p["reflectivity"].astype(np.float32) if "reflectivity" in p.dtype.names else None
             except (ValueError, KeyError, IndexError, TypeError) as e:
-                raise InputError(path, f"{conn.topic}: cannot decode {conn.msgtype} ({e})") from None
+                _warn(InputError(path, f"{conn.topic} @ {ts}: cannot decode {conn.msgtype} ({e})"))
+                continue
             t = _stamp(msg) or ts * 1e-9
             if first is None:
                 first = t
@@ -553,9 +576,7 @@ class Replay:
             yield CameraFrame(t, p.name, (lambda p=p: read_image(p)), i)
 
     def cloud_frames(self) -> Iterator[CloudFrame]:
-        for t, p in self.clouds:
-            c = read_cloud(p)
-            yield CloudFrame(t, c.points, c.intensity, p.name)
+        return _read_clouds(self.clouds)
 
     def truth_by_frame(self) -> dict[str, dict]:
         out = {}

@@ -185,3 +185,25 @@ def test_hero_offset_from_a_recording(sample, tmp_path, capsys):
     assert main(["hero-offset", "--bundle", str(bundle), "--replay", str(sample), "--marker", "nope", "--team", "blue"]) == 2
     assert "no landmark 'nope'" in capsys.readouterr().err
     assert main(["hero-offset", "--bundle", str(bundle), "--measured", "3"]) == 2  # neither --actual nor --marker
+
+
+def test_run_survives_corrupt_clouds_and_images(sample, tmp_path, capsys):
+    rep = tmp_path / "rep"
+    shutil.copytree(sample, rep)
+    (rep / "clouds" / "000010.pcd").write_bytes(b"garbage")
+    (rep / "clouds" / "000011.pcd").write_bytes(b"")
+    (rep / "images" / "000004.jpg").write_bytes(b"\xff\xd8 not a jpeg")
+    from radarcal.runtime.synthetic_onnx import make_fixed_boxes_model
+
+    model = tmp_path / "m.onnx"
+    row = np.zeros(7, np.float32)
+    row[:5] = [320, 300, 20, 20, 0.9]
+    row[5] = 1
+    make_fixed_boxes_model(model, row[None], 640, ["blue_1", "red_3"])
+    assert main(["run", "--replay", str(rep), "--json", "--max-frames", "40"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["frames"] == 40 and s["clouds"] == 12 and s["skipped_inputs"] >= 2 and s["accuracy"]["missing"] == 0
+    assert main(["run", "--replay", str(rep), "--detector", str(model), "--json", "--max-frames", "8"]) == 0
+    cap = capsys.readouterr()
+    s = json.loads(cap.out)
+    assert s["frames"] == 8 and s["bad_frames"] == 1 and "000004.jpg" in cap.err
