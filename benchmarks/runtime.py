@@ -227,17 +227,27 @@ def bench_memory(total: int = 10_000) -> dict:
                 yield CloudFrame(cycle * period + t, read_cloud(p).points)
             cycle += 1
 
-    rss = {}
+    rss, cur = {}, {}
+
+    def current_rss_mb() -> float:
+        try:
+            for line in open("/proc/self/status"):
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+        except OSError:
+            pass
+        return float("nan")
 
     def on_frame(n, res):
-        if n + 1 in (100, 1000, 5000, total):
+        if n + 1 in (100, 1000, 2000, 5000, total):
             rss[n + 1] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+            cur[n + 1] = current_rss_mb()
 
     pipe = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b))
     with tempfile.TemporaryDirectory() as tmp:
         s = run(pipe, merge_by_time(frames(), clouds()), lambda f: dfile.lookup(f.t - (f.index // n_src) * period, f.name), out_path=Path(tmp) / "o.jsonl",
                 minimap_path=Path(tmp) / "m.png", status=False, on_frame=on_frame)  # fmt: skip
-    return {"frames": s["frames"], "fps": s["fps"], "peak_rss_MB": rss}
+    return {"frames": s["frames"], "fps": s["fps"], "peak_rss_MB": rss, "rss_MB": cur}
 
 
 def main(argv: list[str]) -> int:
@@ -265,6 +275,8 @@ def main(argv: list[str]) -> int:
         r = bench_memory()
         print(f"\n10 000-frame replay (sample cycled, clouds re-read, JSON lines + minimap): {r['frames']} frames at {r['fps']:.0f} FPS")
         print("  peak RSS MB after N frames: " + ", ".join(f"{k}: {v:.1f}" for k, v in sorted(r["peak_rss_MB"].items())))
+        print("  current RSS MB after N frames: " + ", ".join(f"{k}: {v:.1f}" for k, v in sorted(r["rss_MB"].items())))
+        print("  (peak RSS is per process: run `python -m benchmarks.runtime memory` alone for the loop's own figure)")
     return 0
 
 

@@ -290,33 +290,50 @@ class Minimap:
 
 
 class StageTimer:
-    """Per-stage latency: recent window (status line) and all-run samples (summary percentiles, bounded)."""
+    """Per-stage latency in fixed-size ring buffers (flat memory however long the match): the recent window feeds the
+    status line, the last ``keep`` frames the summary percentiles."""
 
-    def __init__(self, window: int = 60, keep: int = 20000):
+    def __init__(self, window: int = 60, keep: int = 4096):
         self.window = window
         self.keep = keep
-        self.samples: dict[str, list[float]] = {s: [] for s in STAGES}
-        self.frame_times: list[float] = []
+        self.buf: dict[str, np.ndarray] = {}
+        self.n: dict[str, int] = {}
+        self.frame_times = np.zeros(window)
+        self.frames = 0
 
     def add(self, timings: dict[str, float]) -> None:
         for k, v in timings.items():
-            lst = self.samples.setdefault(k, [])
-            lst.append(v)
-            if len(lst) > self.keep:
-                del lst[: self.keep // 2]
-        self.frame_times.append(time.perf_counter())
-        if len(self.frame_times) > self.window:
-            del self.frame_times[0]
+            if k not in self.buf:
+                self.buf[k] = np.zeros(self.keep)
+                self.n[k] = 0
+            self.buf[k][self.n[k] % self.keep] = v
+            self.n[k] += 1
+        self.frame_times[self.frames % self.window] = time.perf_counter()
+        self.frames += 1
+
+    def _values(self, k: str, last: int | None = None) -> np.ndarray:
+        n = self.n[k]
+        m = min(n, self.keep if last is None else min(last, self.keep))
+        idx = (np.arange(n - m, n)) % self.keep
+        return self.buf[k][idx]
 
     def fps(self) -> float:
-        ft = self.frame_times
-        return (len(ft) - 1) / (ft[-1] - ft[0]) if len(ft) > 1 and ft[-1] > ft[0] else 0.0
+        m = min(self.frames, self.window)
+        if m < 2:
+            return 0.0
+        ft = self.frame_times[(np.arange(self.frames - m, self.frames)) % self.window]
+        return (m - 1) / (ft[-1] - ft[0]) if ft[-1] > ft[0] else 0.0
 
     def recent(self) -> dict[str, float]:
-        return {k: float(np.mean(v[-self.window :])) for k, v in self.samples.items() if v}
+        return {k: float(np.mean(self._values(k, self.window))) for k in self.buf if self.n[k]}
 
     def summary(self) -> dict[str, dict[str, float]]:
-        return {k: {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(np.max(v))} for k, v in self.samples.items() if v}
+        out = {}
+        for k in self.buf:
+            v = self._values(k)
+            if len(v):
+                out[k] = {"median": float(np.median(v)), "p95": float(np.percentile(v, 95)), "max": float(np.max(v))}
+        return out
 
 
 # --- evaluation (replays with truth.jsonl) -------------------------------------------------------------------------------
@@ -483,8 +500,8 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
                     for r in res.robots:
                         hist = mm.history.setdefault(r.label, [])
                         hist.append((res.t, float(r.p_field[0]), float(r.p_field[1])))
-                        if len(hist) > 6000:  # whole-run trails for the PNG, bounded (~200 s per robot)
-                            del hist[:3000]
+                        if len(hist) > 3000:  # whole-run trails for the PNG, bounded: thin the older half
+                            hist[:2000] = hist[:2000:2]
             if link is not None:
                 for cmd, data, key in pipeline.referee_messages(res, team):
                     link.send(cmd, data, key)
