@@ -42,7 +42,7 @@ def run(
     from radarcal.runtime.detector import DetectionsFile, OnnxDetector, read_class_names
     from radarcal.runtime.loop import OnlineEvaluator, Pipeline, RunConfig, pick_frames
     from radarcal.runtime.loop import run as run_loop
-    from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, open_replay
+    from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, open_replay, prefetch_frames
 
     if (replay is None) == (video is None):
         raise InputError("radarcal run", "give exactly one of --replay DIR or --video SRC")
@@ -85,6 +85,9 @@ def run(
     else:
         frames = open_camera(video)
         cloud_src = open_clouds(clouds, cloud_topic) if has_clouds else None
+    if detector is not None:  # the pixels are needed: decode them ahead in a thread (live sources: newest frame only)
+        live = video is not None and (video.isdigit() or "://" in video)
+        frames = prefetch_frames(frames, latest_only=live)
     link = None
     if serial:
         from radarcal.runtime.serial_link import SerialLink

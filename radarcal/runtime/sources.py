@@ -53,6 +53,7 @@ __all__ = [
     "open_camera",
     "open_clouds",
     "merge_by_time",
+    "prefetch_frames",
     "IMAGE_SUFFIXES",
     "SKIPPED",
 ]
@@ -609,6 +610,53 @@ def open_replay(folder: str | os.PathLike) -> Replay:
     truth = root / "truth.jsonl"
     bundle = next((root / n for n in ("calib.yaml", "bundle.yaml") if (root / n).is_file()), None)
     return Replay(root, meta, frames, clouds, det if det.is_file() else None, truth if truth.is_file() else None, bundle)
+
+
+def prefetch_frames(frames: Iterator[CameraFrame], depth: int = 3, latest_only: bool = False) -> Iterator[CameraFrame]:
+    """Decode images in a background thread (JPEG decode and the detector then overlap). ``latest_only`` (live
+    cameras): keep only the newest decoded frame, dropping older ones, so latency never builds up."""
+    import queue
+
+    q: queue.Queue = queue.Queue(maxsize=1 if latest_only else depth)
+    done = object()
+    stop = threading.Event()
+
+    def work():
+        try:
+            for f in frames:
+                if stop.is_set():
+                    break
+                try:
+                    img = f.load()
+                    g = CameraFrame(f.t, f.name, (lambda img=img: img), f.index)
+                except InputError as e:
+                    g = CameraFrame(f.t, f.name, (lambda e=e: (_ for _ in ()).throw(e)), f.index)
+                if latest_only:
+                    try:
+                        q.get_nowait()  # drop the stale frame
+                    except queue.Empty:
+                        pass
+                    q.put(g)
+                else:
+                    while not stop.is_set():
+                        try:
+                            q.put(g, timeout=0.1)
+                            break
+                        except queue.Full:
+                            continue
+        finally:
+            q.put(done)
+
+    th = threading.Thread(target=work, daemon=True, name="frame-prefetch")
+    th.start()
+    try:
+        while True:
+            g = q.get()
+            if g is done:
+                break
+            yield g
+    finally:
+        stop.set()
 
 
 # --- pairing ---------------------------------------------------------------------------------------------------------

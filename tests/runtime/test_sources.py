@@ -176,3 +176,30 @@ def test_video_file_frames(tmp_path):
     assert abs(int(frames[5].load().mean()) - 100) < 6
     with pytest.raises(InputError):
         list(open_camera(str(tmp_path / "missing.mp4")))
+
+
+def test_prefetch_frames_keeps_order_and_errors(tmp_path):
+    import cv2
+
+    from radarcal.runtime.sources import CameraFrame, prefetch_frames
+
+    (tmp_path / "img").mkdir()
+    for i in range(6):
+        cv2.imwrite(str(tmp_path / "img" / f"{i:06d}.png"), np.full((8, 8, 3), i, np.uint8))
+    (tmp_path / "img" / "000003.png").write_bytes(b"bad")
+    got = list(prefetch_frames(image_folder_frames(tmp_path / "img"), depth=2))
+    assert [f.name for f in got] == [f"{i:06d}.png" for i in range(6)]
+    assert got[5].load()[0, 0, 0] == 5
+    with pytest.raises(InputError):
+        got[3].load()
+
+    def slow_live():
+        for i in range(20):
+            time.sleep(0.005)
+            yield CameraFrame(i * 0.005, str(i), lambda i=i: np.full((2, 2), i), i)
+
+    out = []
+    for f in prefetch_frames(slow_live(), latest_only=True):
+        time.sleep(0.03)  # a slow consumer only ever sees the newest frames
+        out.append(int(f.name))
+    assert out[-1] == 19 and len(out) < 20 and out == sorted(out)
