@@ -8,7 +8,7 @@ import sys
 import click
 import typer
 
-from radarcal.cli import bundle_cmd, synth_field_cmd
+from radarcal.cli import bundle_cmd, field_pnp_cmd, synth_field_cmd
 from radarcal.cli import run_cmd
 from radarcal.errors import InputError
 
@@ -22,6 +22,7 @@ def _root(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on 
 
 
 app.add_typer(bundle_cmd.app, name="bundle")
+app.command("field-pnp")(field_pnp_cmd.field_pnp)
 
 # `radarcal synth <scene>`: ground-truth scene generators (one module per scene registers its command here)
 synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
