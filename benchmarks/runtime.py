@@ -172,10 +172,10 @@ def bench_loop(frames: int = 150) -> dict:
             return dfile.lookup(f.t, f.name)
 
         pipe = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b))
-        detect(next(rep.camera_frames()))  # warm-up
+        detect(next(rep.camera_frames(need_pixels=True)))  # warm-up
         det_ms.clear()
         cpu0 = time.process_time()
-        s = run(pipe, merge_by_time(prefetch_frames(rep.camera_frames()), rep.cloud_frames()), detect, out_path=Path(tmp) / "o.jsonl", status=False, max_frames=frames)
+        s = run(pipe, merge_by_time(prefetch_frames(rep.camera_frames(need_pixels=True)), rep.cloud_frames()), detect, out_path=Path(tmp) / "o.jsonl", status=False, max_frames=frames)
         cpu = time.process_time() - cpu0
         # peer in the same process: OpenCV's DNN module on the same graph, if it can load it
         cv_ms = None
@@ -209,14 +209,15 @@ def bench_memory(total: int = 10_000) -> dict:
     b, Pipeline, RunConfig = _rig()
     rep = open_replay(SAMPLE)
     dfile = DetectionsFile.read(rep.detections)
-    period = rep.frames[-1][0] + 1 / 30
-    n_src = len(rep.frames)
+    timeline = rep.timeline or [(t, p.name) for t, p in rep.frames]
+    period = timeline[-1][0] + 1 / 30
+    n_src = len(timeline)
 
     def frames():
         for i in range(total):
             k, t0 = i % n_src, (i // n_src) * period
-            t, p = rep.frames[k]
-            yield CameraFrame(t0 + t, p.name, lambda: None, i)
+            t, name = timeline[k]
+            yield CameraFrame(t0 + t, name, lambda: None, i)
 
     def clouds():
         from radarcal.io import read_cloud

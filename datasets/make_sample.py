@@ -22,7 +22,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 NAME = "sample_replay"
-ARGS = ["--frames", "150", "--seed", "7", "--robots", "6", "--lidar-points", "3000", "--image-scale", "0.25", "--jpeg-quality", "15"]
+ARGS = ["--frames", "300", "--seed", "7", "--robots", "6", "--lidar-points", "3000", "--image-every", "10", "--image-scale", "0.5", "--jpeg-quality", "60"]
 PINNED_TIME = "2026-01-01T00:00:00+00:00"
 
 

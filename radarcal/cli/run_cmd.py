@@ -80,7 +80,7 @@ def run(
         detect = lambda f: dfile.lookup(f.t, f.name)  # noqa: E731
 
     if rep is not None:
-        frames = rep.camera_frames()
+        frames = rep.camera_frames(need_pixels=detector is not None)
         cloud_src = rep.cloud_frames() if has_clouds else None
     else:
         frames = open_camera(video)

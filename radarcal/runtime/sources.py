@@ -566,15 +566,25 @@ def open_clouds(spec: str, topic: str | None = None, hz: float = 10.0):
 class Replay:
     root: Path
     meta: dict
-    frames: list[tuple[float, Path]]
+    frames: list[tuple[float, Path]]  # the images that exist
     clouds: list[tuple[float, Path]]
     detections: Path | None
     truth: Path | None
     bundle: Path | None
+    timeline: list[tuple[float, str]] | None = None  # every camera frame (from detections.jsonl), images or not
 
-    def camera_frames(self) -> Iterator[CameraFrame]:
-        for i, (t, p) in enumerate(self.frames):
-            yield CameraFrame(t, p.name, (lambda p=p: read_image(p)), i)
+    def camera_frames(self, need_pixels: bool = False) -> Iterator[CameraFrame]:
+        """The camera frames. Driven by detections (``need_pixels=False``) every frame of ``detections.jsonl`` is
+        yielded even when ``synth field --image-every K`` wrote only every K-th image; a detector needs the pixels
+        and gets the frames that have an image."""
+        if need_pixels or self.timeline is None:
+            for i, (t, p) in enumerate(self.frames):
+                yield CameraFrame(t, p.name, (lambda p=p: read_image(p)), i)
+            return
+        images = self.root / "images"
+        for i, (t, name) in enumerate(self.timeline):
+            p = images / name
+            yield CameraFrame(t, name, (lambda p=p: read_image(p)), i)
 
     def cloud_frames(self) -> Iterator[CloudFrame]:
         return _read_clouds(self.clouds)
@@ -589,6 +599,21 @@ class Replay:
                     d = json.loads(line)
                     out[str(d.get("frame", d.get("t")))] = d
         return out
+
+
+def _timeline(det: Path) -> list[tuple[float, str]] | None:
+    out = []
+    with open(det, encoding="utf-8") as f:
+        for i, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            try:
+                d = json.loads(line)
+                out.append((float(d["t"]), str(d["frame"])))
+            except (ValueError, KeyError, TypeError):
+                return None  # no usable frame names: the image list drives the replay (DetectionsFile reports errors)
+    out.sort(key=lambda x: x[0])
+    return out or None
 
 
 def open_replay(folder: str | os.PathLike) -> Replay:
@@ -609,7 +634,8 @@ def open_replay(folder: str | os.PathLike) -> Replay:
     det = root / "detections.jsonl"
     truth = root / "truth.jsonl"
     bundle = next((root / n for n in ("calib.yaml", "bundle.yaml") if (root / n).is_file()), None)
-    return Replay(root, meta, frames, clouds, det if det.is_file() else None, truth if truth.is_file() else None, bundle)
+    det = det if det.is_file() else None
+    return Replay(root, meta, frames, clouds, det, truth if truth.is_file() else None, bundle, _timeline(det) if det else None)
 
 
 def prefetch_frames(frames: Iterator[CameraFrame], depth: int = 3, latest_only: bool = False) -> Iterator[CameraFrame]:

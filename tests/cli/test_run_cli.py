@@ -30,10 +30,10 @@ def test_run_replay_json_outputs(sample, tmp_path, capsys):
     out, mm = tmp_path / "tracks.jsonl", tmp_path / "map.png"
     code = main(["run", "--replay", str(sample), "--out", str(out), "--minimap", str(mm), "--json"])
     s = json.loads(capsys.readouterr().out)
-    assert code == 0 and s["frames"] == 150 and s["clouds"] == 50 and s["lidar"] == "lidar0"
+    assert code == 0 and s["frames"] == 300 and s["clouds"] == 100 and s["lidar"] == "lidar0"
     assert s["accuracy"]["missing"] == 0 and s["accuracy"]["median_m"] < 0.3 and s["accuracy"]["p95_m"] < 0.8
     lines = [json.loads(x) for x in out.read_text().splitlines()]
-    assert len(lines) == 150 and {"t", "frame", "robots", "sentry", "hero_range_m", "latency_ms"} <= set(lines[0])
+    assert len(lines) == 300 and {"t", "frame", "robots", "sentry", "hero_range_m", "latency_ms"} <= set(lines[0])
     rob = lines[-1]["robots"][0]
     assert {"label", "x", "y", "z", "source", "sigma", "depth"} <= set(rob)
     import cv2
@@ -44,11 +44,12 @@ def test_run_replay_json_outputs(sample, tmp_path, capsys):
 
 def test_run_separate_sources_and_status_line(sample, tmp_path, capsys):
     code = main(["run", "--bundle", str(sample / "calib.yaml"), "--video", str(sample / "images"), "--clouds", str(sample / "clouds"),
-                 "--detections", str(sample / "detections.jsonl"), "--out", str(tmp_path / "o.jsonl"), "--max-frames", "40"])  # fmt: skip
+                 "--detections", str(sample / "detections.jsonl"), "--out", str(tmp_path / "o.jsonl"), "--max-frames", "20"])  # fmt: skip
     cap = capsys.readouterr()
-    assert code == 0 and "40 frames" in cap.out and "FPS" in cap.err
+    # the image folder holds every 10th frame (3 fps): frames pair with their detections by name, clouds by time
+    assert code == 0 and "20 frames" in cap.out and "FPS" in cap.err
     lines = [json.loads(x) for x in (tmp_path / "o.jsonl").read_text().splitlines()]
-    assert len(lines) == 40 and any(r["source"] == "depth" for ln in lines for r in ln["robots"])
+    assert len(lines) == 20 and lines[1]["frame"] == "000010.jpg" and any(r["source"] == "depth" for ln in lines for r in ln["robots"])
 
 
 def test_run_with_generated_onnx_detector(sample, tmp_path, capsys):
@@ -192,7 +193,7 @@ def test_run_survives_corrupt_clouds_and_images(sample, tmp_path, capsys):
     shutil.copytree(sample, rep)
     (rep / "clouds" / "000010.pcd").write_bytes(b"garbage")
     (rep / "clouds" / "000011.pcd").write_bytes(b"")
-    (rep / "images" / "000004.jpg").write_bytes(b"\xff\xd8 not a jpeg")
+    (rep / "images" / "000010.jpg").write_bytes(b"\xff\xd8 not a jpeg")
     from radarcal.runtime.synthetic_onnx import make_fixed_boxes_model
 
     model = tmp_path / "m.onnx"
@@ -206,4 +207,4 @@ def test_run_survives_corrupt_clouds_and_images(sample, tmp_path, capsys):
     assert main(["run", "--replay", str(rep), "--detector", str(model), "--json", "--max-frames", "8"]) == 0
     cap = capsys.readouterr()
     s = json.loads(cap.out)
-    assert s["frames"] == 8 and s["bad_frames"] == 1 and "000004.jpg" in cap.err
+    assert s["frames"] == 8 and s["bad_frames"] == 1 and "000010.jpg" in cap.err
