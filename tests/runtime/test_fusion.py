@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import robot_cloud
+from runtime_scene import robot_cloud
 
 from radarcal.geometry import invert_T, transform_points
 from radarcal.runtime.fusion import CloudQueue, make_depth_image, robust_depth

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from conftest import robot_cloud
+from runtime_scene import robot_cloud
 
 from radarcal.geometry import invert_T, transform_points
 from radarcal.runtime.fusion import CloudQueue
