@@ -150,7 +150,7 @@ def bench_fusion() -> list[dict]:
 def bench_loop(frames: int = 150) -> dict:
     from radarcal.runtime.detector import DetectionsFile, OnnxDetector
     from radarcal.runtime.loop import run
-    from radarcal.runtime.sources import merge_by_time, open_replay, prefetch_frames
+    from radarcal.runtime.sources import CameraFrame, merge_by_time, open_replay, prefetch_frames
     from radarcal.runtime.synthetic_onnx import count_macs, make_yolov5n_like
 
     b, Pipeline, RunConfig = _rig()
@@ -175,7 +175,28 @@ def bench_loop(frames: int = 150) -> dict:
         detect(next(rep.camera_frames(need_pixels=True)))  # warm-up
         det_ms.clear()
         cpu0 = time.process_time()
-        s = run(pipe, merge_by_time(prefetch_frames(rep.camera_frames(need_pixels=True)), rep.cloud_frames()), detect, out_path=Path(tmp) / "o.jsonl", status=False, max_frames=frames)
+        period = (rep.timeline[-1][0] if rep.timeline else rep.frames[-1][0]) + 1 / 30
+
+        def cycled_frames():  # the sample has an image every 10th frame: cycle them to get `frames` frames
+            k = 0
+            while True:
+                for f in rep.camera_frames(need_pixels=True):
+                    yield CameraFrame(f.t + k * period, f.name, f.load, f.index)
+                k += 1
+
+        def cycled_clouds():
+            k = 0
+            while True:
+                for c in rep.cloud_frames():
+                    c.t += k * period
+                    yield c
+                k += 1
+
+        def detect_cycled(f):
+            f2 = CameraFrame(f.t % period, f.name, f.load, f.index)
+            return detect(f2)
+
+        s = run(pipe, merge_by_time(prefetch_frames(cycled_frames()), cycled_clouds()), detect_cycled, out_path=Path(tmp) / "o.jsonl", status=False, max_frames=frames)
         cpu = time.process_time() - cpu0
         # peer in the same process: OpenCV's DNN module on the same graph, if it can load it
         cv_ms = None
