@@ -208,3 +208,17 @@ def test_run_survives_corrupt_clouds_and_images(sample, tmp_path, capsys):
     cap = capsys.readouterr()
     s = json.loads(cap.out)
     assert s["frames"] == 8 and s["bad_frames"] == 1 and "000010.jpg" in cap.err
+
+
+def test_run_without_field_model_uses_flat_ground(sample, tmp_path, capsys):
+    import yaml
+
+    d = yaml.safe_load((sample / "calib.yaml").read_text())
+    d["field"] = None
+    b = tmp_path / "nofield.yaml"
+    b.write_text(yaml.safe_dump(d))
+    assert main(["run", "--replay", str(sample), "--bundle", str(b), "--no-lidar", "--team", "blue", "--json", "--max-frames", "90"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    acc = s["accuracy"]
+    # the sample's robots mostly stay on the ground: the plane z = 0 locates them; no outpost -> no hero range
+    assert acc["missing"] == 0 and acc["median_m"] < 0.3 and s["lidar"] is None
