@@ -148,6 +148,9 @@ class Pipeline:
         tic = time.perf_counter()
         best: dict[str, Detection] = {}
         for d in detections:
+            b = np.asarray(d.xyxy, float)
+            if b.shape != (4,) or not np.all(np.isfinite(b)) or b[2] <= b[0] or b[3] <= b[1] or not np.isfinite(d.score):
+                continue  # a malformed box is dropped, never fatal
             if d.score >= self.cfg.min_score and (d.label not in best or d.score > best[d.label].score):
                 best[d.label] = d
         dets = list(best.values())

@@ -122,3 +122,16 @@ def test_minimap_video_and_png(replay, tmp_path):
     assert n == 20
     lines = (tmp_path / "t.jsonl").read_text().splitlines()
     assert len(lines) == 20 and json.loads(lines[0])["robots"]
+
+
+def test_malformed_boxes_are_dropped(replay):
+    from radarcal.runtime.detector import Detection
+
+    b = load_bundle(replay.bundle)
+    pipe = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b))
+    pipe.add_cloud(0.0, next(replay.cloud_frames()).points)
+    bad = [Detection(np.array([np.nan, 1, 2, 3]), "blue_1", 0.9), Detection(np.array([50, 50, 10, 10]), "blue_2", 0.9),
+           Detection(np.array([1, 2, 3]), "blue_3", 0.9), Detection(np.array([600, 300, 640, 340.0]), "blue_4", float("nan")),
+           Detection(np.array([600, 300, 640, 340.0]), "blue_7", 0.9)]  # fmt: skip
+    res = pipe.process(0.0, "x", bad)
+    assert [r.label for r in res.robots] == ["blue_7"]
