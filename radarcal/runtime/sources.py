@@ -7,7 +7,7 @@ directory / ``.mcap`` / ``.db3`` with Livox ``CustomMsg`` (livox_ros_driver / li
 ``sensor_msgs/PointCloud2``, read with ``rosbags`` (no ROS) and decoded to numpy from the message definitions stored
 in the bag (a small layout walker, no per-point Python objects); or live Livox SDK1 UDP point packets.
 
-Livox live input: **Livox SDK 1 (LiDAR protocol v1, packet version 5)** point-data packets as sent by Mid-40 /
+Livox live input: **Livox SDK 1 (LiDAR communication protocol v1)** point-data packets as sent by Mid-40 /
 Mid-70 / Horizon / Tele / Avia: an 18-byte header (version u8, slot u8, lidar id u8, reserved u8, status u32,
 timestamp type u8, data type u8, timestamp u64 ns) followed by points of data type 0 (cartesian int32 mm + u8
 reflectivity, 100 per packet), 1 (spherical: depth u32 mm, theta u16, phi u16 in 0.01 deg, reflectivity), 2
