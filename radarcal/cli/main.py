@@ -12,6 +12,7 @@ from radarcal.cli import bundle_cmd, common
 from radarcal.cli import field_pnp_cmd, synth_field_cmd
 from radarcal.cli import synth_board_cmd
 from radarcal.cli import radar_lidar_cmd, synth_radar_cmd
+from radarcal.cli import run_cmd
 from radarcal.errors import InputError
 
 app = typer.Typer(name="radarcal", help="Calibration for camera / LiDAR / mmWave-radar rigs.", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -33,6 +34,8 @@ synth_app.command("field")(synth_field_cmd.synth_field)
 synth_app.command("board")(synth_board_cmd.synth_board)
 synth_app.command("radar")(synth_radar_cmd.synth_radar)
 app.command("radar-lidar")(radar_lidar_cmd.radar_lidar)
+app.command("run")(run_cmd.run)
+app.command("hero-offset")(run_cmd.hero_offset)
 
 
 def _click_classes(name: str) -> tuple[type, ...]:

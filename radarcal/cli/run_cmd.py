@@ -1,0 +1,217 @@
+"""``radarcal run`` (match-time localisation loop) and ``radarcal hero-offset`` (per-match hero range offset)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.errors import InputError
+
+__all__ = ["run", "hero_offset", "compute_hero_offset"]
+
+
+def run(
+    bundle: Path = typer.Option(None, "--bundle", "-b", help="Calibration bundle (default: calib.yaml inside --replay)."),
+    replay: Path = typer.Option(None, "--replay", help="Replay folder (images/, clouds/, detections.jsonl) as written by `radarcal synth field`."),
+    video: str = typer.Option(None, "--video", help="Camera: video file, image folder, device index or URL."),
+    clouds: str = typer.Option(None, "--clouds", help="LiDAR: folder of PCD/npy/bin, ROS1/ROS2 bag, or livox://HOST:PORT (Livox SDK1 UDP)."),
+    cloud_topic: str = typer.Option(None, "--cloud-topic", help="Bag topic (default: every Livox CustomMsg / PointCloud2 topic)."),
+    cloud_offset: float = typer.Option(0.0, "--cloud-time-offset", help="Seconds added to cloud times before pairing with frames."),
+    detector: Path = typer.Option(None, "--detector", help="YOLOv5-style ONNX model."),
+    names: Path = typer.Option(None, "--names", help="Class names file (default: the model's metadata)."),
+    conf: float = typer.Option(0.25, "--conf", help="Detector confidence threshold."),
+    threads: int = typer.Option(0, "--threads", help="onnxruntime intra-op threads (0 = its default)."),
+    detections: Path = typer.Option(None, "--detections", help="Precomputed detections (JSON lines, one per frame)."),
+    serial: str = typer.Option(None, "--serial", help="Referee serial port, e.g. /dev/ttyUSB0 (115200 8N1)."),
+    out: Path = typer.Option(None, "--out", help="Per-frame JSON lines (robots in field coordinates)."),
+    minimap: Path = typer.Option(None, "--minimap", help="Minimap output: .png (last frame + trails) or .mp4."),
+    camera: str = typer.Option(None, "--camera", help="Camera name in the bundle (default: the only one)."),
+    lidar: str = typer.Option(None, "--lidar", help="LiDAR name in the bundle (default: the only one with an extrinsic)."),
+    team: str = typer.Option(None, "--team", help="Our colour red|blue (default: bundle runtime.team, then the referee link)."),
+    season: int = typer.Option(None, "--season", help="Referee protocol season (0x0305 layout, rate limits); default bundle runtime.referee_season."),
+    sentry_xy: str = typer.Option(None, "--sentry-xy", help="Our sentry's field position X,Y (m) when it is not tracked."),
+    max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
+    no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
+    as_json: bool = JsonOpt,
+) -> None:
+    """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
+    from radarcal.bundle import load_bundle
+    from radarcal.runtime.detector import DetectionsFile, OnnxDetector, read_class_names
+    from radarcal.runtime.loop import OnlineEvaluator, Pipeline, RunConfig, pick_frames
+    from radarcal.runtime.loop import run as run_loop
+    from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, open_replay, prefetch_frames
+
+    if (replay is None) == (video is None):
+        raise InputError("radarcal run", "give exactly one of --replay DIR or --video SRC")
+    if detector is not None and detections is not None:
+        raise InputError("radarcal run", "give at most one of --detector and --detections")
+    if team is not None and team not in ("red", "blue"):
+        raise InputError("--team", f"expected red or blue, got {team!r}")
+    rep = open_replay(replay) if replay is not None else None
+    if bundle is None:
+        if rep is None or rep.bundle is None:
+            raise InputError("--bundle", "required (the replay has no calib.yaml)")
+        bundle = rep.bundle
+    b = load_bundle(bundle)
+    has_clouds = not no_lidar and ((rep is not None and bool(rep.clouds)) or clouds is not None)
+    cam_name, lidar_name = pick_frames(b, camera or (rep.meta.get("camera") if rep else None), lidar or (rep.meta.get("lidar") if rep and has_clouds else None), has_clouds)
+    sxy = None
+    if sentry_xy:
+        try:
+            sxy = tuple(float(v) for v in sentry_xy.split(","))
+        except ValueError:
+            sxy = ()
+        if len(sxy) != 2:
+            raise InputError("--sentry-xy", f"expected X,Y in metres, got {sentry_xy!r}")
+    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy)
+    pipe = Pipeline(b, cam_name, lidar_name if has_clouds else None, cfg)
+
+    if detector is not None:
+        det = OnnxDetector(detector, read_class_names(names) if names else None, conf_thres=conf, threads=threads)
+        detect = lambda f: det(f.load())  # noqa: E731
+    else:
+        det_path = detections or (rep.detections if rep else None)
+        if det_path is None:
+            raise InputError("radarcal run", "no detector: give --detector model.onnx or --detections FILE (or a replay with detections.jsonl)")
+        dfile = DetectionsFile.read(det_path)
+        detect = lambda f: dfile.lookup(f.t, f.name)  # noqa: E731
+
+    if rep is not None:
+        frames = rep.camera_frames(need_pixels=detector is not None)
+        cloud_src = rep.cloud_frames() if has_clouds else None
+    else:
+        frames = open_camera(video)
+        cloud_src = open_clouds(clouds, cloud_topic) if has_clouds else None
+    if detector is not None:  # the pixels are needed: decode them ahead in a thread (live sources: newest frame only)
+        live = video is not None and (video.isdigit() or "://" in video)
+        frames = prefetch_frames(frames, latest_only=live)
+    link = None
+    if serial:
+        from radarcal.runtime.serial_link import SerialLink
+
+        link = SerialLink(serial, season=cfg.season).start()
+    evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
+    try:
+        summary = run_loop(pipe, merge_by_time(frames, cloud_src, cloud_offset), detect, out, minimap, link, status=not quiet and not as_json,
+                           max_frames=max_frames, on_frame=evaluator)  # fmt: skip
+    finally:
+        if link is not None:
+            link.close()
+        if cloud_src is not None and hasattr(cloud_src, "close"):
+            cloud_src.close()
+    summary.pop("results")
+    from radarcal.runtime.sources import SKIPPED
+
+    summary["skipped_inputs"] = len(SKIPPED)
+    if evaluator is not None:
+        summary["accuracy"] = evaluator.summary()
+    summary.update({"bundle": str(bundle), "camera": cam_name, "lidar": lidar_name if has_clouds else None, "out": str(out) if out else None,
+                    "minimap": str(minimap) if minimap else None, "team": cfg.team, "season": cfg.season})  # fmt: skip
+    if link is not None:
+        summary["serial"] = {"port": serial, **link.snapshot(), "disconnects": link.stats.disconnects, "last_error": link.stats.last_error}
+
+    def human(s: dict) -> None:
+        typer.echo(f"{s['frames']} frames in {s['wall_s']:.1f} s ({s['fps']:.1f} FPS), {s['clouds']} clouds; camera {s['camera']}, lidar {s['lidar'] or '-'}")
+        lat = s["latency_ms"]
+        typer.echo("  latency ms (median / p95): " + ", ".join(f"{k} {v['median']:.2f}/{v['p95']:.2f}" for k, v in lat.items()))
+        rf = s["robot_frames"]
+        typer.echo(f"  robot positions: {rf.get('depth', 0)} from LiDAR depth, {rf.get('ground', 0)} from the ground ray, {rf.get('predicted', 0)} predicted")
+        acc = s.get("accuracy")
+        if acc and acc["median_m"] is not None:
+            typer.echo(f"  vs truth: {acc['located']}/{acc['visible']} visible robots located; error median {acc['median_m']:.3f} m, p95 {acc['p95_m']:.3f} m, max {acc['max_m']:.3f} m")
+        if s.get("bad_frames") or s.get("skipped_inputs"):
+            typer.echo(f"  skipped: {s['bad_frames']} unreadable frames, {s['skipped_inputs']} unreadable clouds/messages (warnings on stderr)")
+        if s.get("out"):
+            typer.echo(f"  tracks -> {s['out']}")
+        if s.get("minimap"):
+            typer.echo(f"  minimap -> {s['minimap']}")
+
+    emit(summary, as_json, human)
+
+
+def compute_hero_offset(measured_m: float, actual_m: float) -> float:
+    """The fixed per-match correction: actual - measured (added to every later hero range)."""
+    return float(actual_m) - float(measured_m)
+
+
+def hero_offset(
+    bundle: Path = typer.Option(..., "--bundle", "-b", help="Calibration bundle to update."),
+    measured: float = typer.Option(None, "--measured", help="Hero -> enemy outpost distance radarcal reported (m, without offset)."),
+    actual: float = typer.Option(None, "--actual", help="The true distance (m)."),
+    replay: Path = typer.Option(None, "--replay", help="Instead of --measured: a short recording (replay folder) with our hero standing at a known point."),
+    marker: str = typer.Option(None, "--marker", help="With --replay, instead of --actual: the field landmark the hero stands at."),
+    team: str = typer.Option(None, "--team", help="Our colour red|blue (default: bundle runtime.team)."),
+    as_json: bool = JsonOpt,
+) -> None:
+    """Store the per-match hero range offset (actual - measured) in the bundle (runtime.hero_range_offset_m)."""
+    import math
+
+    import numpy as np
+
+    from radarcal.bundle import load_bundle, save_bundle
+
+    if (measured is None) == (replay is None):
+        raise InputError("radarcal hero-offset", "give exactly one of --measured M or --replay DIR")
+    if (actual is None) == (marker is None):
+        raise InputError("radarcal hero-offset", "give exactly one of --actual A or --marker LANDMARK")
+    if marker is not None and replay is None:
+        raise InputError("--marker", "needs --replay (a recording with the hero at the marker)")
+    b = load_bundle(bundle)
+    team = team or str(b.runtime.get("team", "red"))
+    if team not in ("red", "blue"):
+        raise InputError("--team", f"expected red or blue, got {team!r}")
+    extra = {}
+    if replay is not None:
+        measured, extra = _hero_range_from_recording(b, replay, team)
+        if marker is not None:
+            from radarcal.field import FieldModel
+
+            if not b.field_model:
+                raise InputError(bundle, "no field model in the bundle (needed for --marker)")
+            fm = FieldModel.from_dict(b.field_model, bundle)
+            enemy = "blue" if team == "red" else "red"
+            for name in (marker, f"{enemy}_outpost"):
+                if name not in fm.landmarks:
+                    raise InputError("--marker", f"no landmark {name!r} in the field model ({', '.join(sorted(fm.landmarks))})")
+            actual = float(np.linalg.norm(fm.landmarks[marker][:2] - fm.landmarks[f"{enemy}_outpost"][:2]))
+    for name, v in (("--measured", measured), ("--actual", actual)):
+        if not math.isfinite(v) or v <= 0 or v > 60:
+            raise InputError(name, f"expected a distance in metres (0..60], got {v}")
+    old = float(b.runtime.get("hero_range_offset_m", 0.0))
+    off = compute_hero_offset(measured, actual)
+    b.runtime["hero_range_offset_m"] = off
+    b.runtime["hero_range_offset_note"] = f"{command_line()}"
+    save_bundle(b, bundle)
+    emit({"bundle": str(bundle), "hero_range_offset_m": off, "previous_m": old, "measured_m": measured, "actual_m": actual, **extra}, as_json,
+         lambda s: typer.echo(f"hero range offset {s['hero_range_offset_m']:+.3f} m (actual {s['actual_m']:.3f} - measured {s['measured_m']:.3f}) "
+                              f"stored in {s['bundle']} (was {s['previous_m']:+.3f} m)"))  # fmt: skip
+
+
+def _hero_range_from_recording(b, replay: Path, team: str) -> tuple[float, dict]:
+    """Median hero -> enemy outpost range (without offset) over a recording, with its spread."""
+    import numpy as np
+
+    from radarcal.runtime.detector import DetectionsFile
+    from radarcal.runtime.loop import Pipeline, RunConfig, pick_frames
+    from radarcal.runtime.loop import run as run_loop
+    from radarcal.runtime.sources import merge_by_time, open_replay
+
+    rep = open_replay(replay)
+    if rep.detections is None:
+        raise InputError(replay, "the recording has no detections.jsonl")
+    cam, lidar = pick_frames(b, rep.meta.get("camera"), rep.meta.get("lidar") if rep.clouds else None, bool(rep.clouds))
+    pipe = Pipeline(b, cam, lidar, RunConfig.from_bundle(b, team=team, hero_range_offset_m=0.0))
+    dets = DetectionsFile.read(rep.detections)
+    ranges: list[float] = []
+    run_loop(pipe, merge_by_time(rep.camera_frames(), rep.cloud_frames() if lidar else None), lambda f: dets.lookup(f.t, f.name), status=False,
+             on_frame=lambda n, res: ranges.append(res.hero_range_m) if res.hero_range_m is not None else None)  # fmt: skip
+    if len(ranges) < 5:
+        raise InputError(replay, f"our hero ({team}_1) was located in only {len(ranges)} frames")
+    r = np.asarray(ranges)
+    return float(np.median(r)), {"frames_with_hero": len(r), "measured_spread_m": float(np.percentile(r, 90) - np.percentile(r, 10))}
+
+
+_ = err_console  # stderr console kept for symmetry with other commands

@@ -1,0 +1,269 @@
+"""LiDAR -> camera fusion: a bounded cloud queue, one sparse depth image per cloud, robust depth inside a box.
+
+Following the NUAA radar-station report (2022): every received cloud becomes a depth image aligned with the camera;
+the clouds (and their depth images) are kept in a queue bounded by a point budget and an age limit, the oldest
+dropped first; the depth of a detection box is a statistic of the points in the box, taken from the newest depth
+image and falling back to older ones while the box is (nearly) empty; ``None`` when no image has a point there.
+
+Depth images are sparse (sorted linear pixel index + nearest camera-frame z per pixel): building one is a single
+integer sort of ``pixel << 32 | float bits(z)`` (nearest z first within a pixel, since positive float32 bit
+patterns order like the floats), and a box query is a ``searchsorted`` per box row. Memory is 8 bytes per
+occupied pixel, so a 1 M point queue costs ~8 MB instead of one full-resolution float image per cloud.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from radarcal.camera import Camera
+from radarcal.geometry import transform_points
+
+__all__ = ["DepthImage", "BoxDepth", "make_depth_image", "robust_depth", "CloudQueue", "SurfaceFilter"]
+
+
+@dataclass
+class DepthImage:
+    t: float
+    pix: np.ndarray  # (M,) int64 sorted unique linear pixel index v * width + u
+    depth: np.ndarray  # (M,) float32 nearest camera-frame z (m) at that pixel
+    n_points: int  # points of the source cloud (counts against the queue budget)
+    width: int
+    height: int
+
+    def dense(self) -> np.ndarray:
+        """(H, W) float32 image, NaN where empty (for display/tests; the runtime never needs it)."""
+        img = np.full(self.width * self.height, np.nan, np.float32)
+        img[self.pix] = self.depth
+        return img.reshape(self.height, self.width)
+
+    def values_in_box(self, x1: float, y1: float, x2: float, y2: float, exclude: np.ndarray | None = None) -> np.ndarray:
+        """Depths of the occupied pixels whose centres lie in the box [x1, x2] x [y1, y2] and outside every
+        rectangle of ``exclude`` (K,4 xyxy)."""
+        u0, v0 = max(int(np.ceil(x1)), 0), max(int(np.ceil(y1)), 0)
+        u1, v1 = min(int(np.floor(x2)), self.width - 1), min(int(np.floor(y2)), self.height - 1)
+        if u1 < u0 or v1 < v0 or not len(self.pix):
+            return np.zeros(0, np.float32)
+        rows = np.arange(v0, v1 + 1, dtype=np.int64) * self.width
+        lo = np.searchsorted(self.pix, rows + u0, "left")
+        hi = np.searchsorted(self.pix, rows + u1, "right")
+        counts = hi - lo
+        total = int(counts.sum())
+        if total == 0:
+            return np.zeros(0, np.float32)
+        starts = np.repeat(lo - np.concatenate(([0], np.cumsum(counts)[:-1])), counts)
+        idx = starts + np.arange(total)
+        if exclude is not None and len(exclude):
+            pix = self.pix[idx]
+            u, v = pix % self.width, pix // self.width
+            ex = np.asarray(exclude, float).reshape(-1, 4)
+            hit = (u[:, None] >= ex[:, 0]) & (u[:, None] <= ex[:, 2]) & (v[:, None] >= ex[:, 1]) & (v[:, None] <= ex[:, 3])
+            idx = idx[~hit.any(axis=1)]
+        return self.depth[idx]
+
+
+def make_depth_image(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.ndarray, t: float = 0.0, min_depth: float = 0.3) -> DepthImage:
+    """Project a cloud into the camera and keep the nearest z per pixel (pixel centres at integer coordinates)."""
+    pts = np.asarray(points_lidar, np.float32).reshape(-1, 3)
+    w, h = camera.image_size
+    if not len(pts):
+        return DepthImage(t, np.zeros(0, np.int64), np.zeros(0, np.float32), 0, w, h)
+    p_cam = transform_points(T_cam_lidar, pts)
+    front = p_cam[:, 2] > min_depth
+    p_cam = p_cam[front]
+    uv, valid = camera.project(p_cam)
+    ui = np.rint(uv[:, 0])
+    vi = np.rint(uv[:, 1])
+    with np.errstate(invalid="ignore"):
+        valid &= (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    lin = vi[valid].astype(np.int64) * w + ui[valid].astype(np.int64)
+    z = p_cam[valid, 2].astype(np.float32)
+    key = (lin << 32) | z.view(np.uint32).astype(np.int64)
+    key.sort()
+    lin_sorted = key >> 32
+    first = np.empty(len(key), bool)
+    if len(key):
+        first[0] = True
+        np.not_equal(lin_sorted[1:], lin_sorted[:-1], out=first[1:])
+    depth = (key[first] & 0xFFFFFFFF).astype(np.uint32).view(np.float32)
+    return DepthImage(t, lin_sorted[first], depth, len(pts), w, h)
+
+
+class SurfaceFilter:
+    """Drops LiDAR returns from the field surface (ground, highland tops, ramps) before they enter a depth image, so
+    a box's depth comes from what stands on the field (robots, structures) and not from the terrain around or in
+    front of it (a robot half hidden behind a highland edge would otherwise take the highland's depth).
+
+    The surface height is rasterised once (``res`` m cells, from ``surface_z``) and looked up per point, so the
+    filter costs a transform and a gather per cloud. The raster is max-filtered over ``wall_margin`` so that returns
+    from the vertical walls of raised areas (the surface height jumps there) count as terrain too. Without a field
+    model the surface is the plane z = 0.
+
+    ``structures`` (the field model's static boxes: bases, outposts — ``{"center": [x, y, z_bottom], "size":
+    [lx, ly, lz], "yaw"}``) are removed too, grown by ``structure_margin``: a robot behind an outpost must not take
+    the outpost's depth (with its own points gone, its box falls back to older clouds or to the ground ray, which
+    passes through structures)."""
+
+    def __init__(self, T_field_lidar: np.ndarray, surface_z=None, bounds: tuple[float, float, float, float] = (-2.0, -2.0, 30.0, 17.0), min_height: float = 0.08,
+                 res: float = 0.05, wall_margin: float = 0.1, structures: list[dict] | None = None, structure_margin: float = 0.1):  # fmt: skip
+        self.T = np.asarray(T_field_lidar, float)
+        self.structures = []
+        for st in structures or []:
+            c = np.asarray(st["center"], float)
+            half = np.asarray(st["size"], float) / 2 + structure_margin
+            yaw = float(st.get("yaw", 0.0))
+            self.structures.append((c, half, np.cos(yaw), np.sin(yaw)))
+        self.min_height = float(min_height)
+        self.res = float(res)
+        self.x0, self.y0, x1, y1 = bounds
+        nx, ny = int(np.ceil((x1 - self.x0) / res)), int(np.ceil((y1 - self.y0) / res))
+        if surface_z is None:
+            self.grid = np.zeros((ny, nx), np.float32)
+        else:
+            gx = self.x0 + (np.arange(nx) + 0.5) * res
+            gy = self.y0 + (np.arange(ny) + 0.5) * res
+            xx, yy = np.meshgrid(gx, gy)
+            z = np.asarray(surface_z(np.column_stack([xx.ravel(), yy.ravel()])), float)
+            grid = np.where(np.isfinite(z), z, 0.0).reshape(ny, nx)
+            k = 2 * int(np.ceil(wall_margin / res)) + 1
+            if k > 1:
+                from scipy.ndimage import maximum_filter
+
+                grid = maximum_filter(grid, size=k, mode="nearest")
+            self.grid = grid.astype(np.float32)
+
+    def _heights(self, p: np.ndarray) -> np.ndarray:
+        ix = np.clip(((p[:, 0] - self.x0) / self.res).astype(np.int64), 0, self.grid.shape[1] - 1)
+        iy = np.clip(((p[:, 1] - self.y0) / self.res).astype(np.int64), 0, self.grid.shape[0] - 1)
+        return p[:, 2] - self.grid[iy, ix]
+
+    def heights(self, points_lidar: np.ndarray) -> np.ndarray:
+        """Height of each point above the surface under it (m)."""
+        return self._heights(transform_points(self.T, np.asarray(points_lidar, np.float32)))
+
+    def __call__(self, points_lidar: np.ndarray) -> np.ndarray:
+        """Mask of the points to keep (above the surface by ``min_height`` and outside every structure)."""
+        p = transform_points(self.T, np.asarray(points_lidar, np.float32))
+        keep = self._heights(p) > self.min_height
+        for c, half, cs, sn in self.structures:
+            dx, dy = p[:, 0] - c[0], p[:, 1] - c[1]
+            inside = (np.abs(cs * dx + sn * dy) <= half[0]) & (np.abs(-sn * dx + cs * dy) <= half[1]) & (p[:, 2] - c[2] <= 2 * half[2]) & (p[:, 2] >= c[2] - 0.1)
+            keep &= ~inside
+        return keep
+
+
+@dataclass
+class BoxDepth:
+    depth: float  # camera-frame z (m)
+    sigma: float  # standard error of that depth (m)
+    n: int  # points in the chosen cluster
+    n_box: int  # points in the box of the image used
+    age_s: float  # query time - time of the cloud the depth came from
+    images_used: int  # depth images consulted (1 = newest)
+
+
+def robust_depth(values: np.ndarray, min_points: int = 3, min_fraction: float = 0.15, gap_m: float = 0.35, gap_rel: float = 0.03) -> tuple[float, float, int] | None:
+    """Depth of the object in a box from the depths of the points in it: (depth, sigma, n_used) or None.
+
+    The statistic depends on how many points there are: fewer than ``min_points`` -> the nearest value (a robot in
+    front of a far background: the few points that hit it are the nearest); otherwise the points are split into
+    depth clusters at gaps larger than ``max(gap_m, gap_rel * depth)`` and the nearest cluster holding at least
+    ``max(min_points, min_fraction * n)`` points wins (single stray near returns are skipped); its median is the
+    depth and ``1.4826 MAD / sqrt(k)`` (floored at 2 cm) its sigma."""
+    v = np.sort(np.asarray(values, np.float32)[np.isfinite(values)])
+    n = len(v)
+    if n == 0:
+        return None
+    if n < min_points:
+        return float(v[0]), max(float(v[-1] - v[0]), 0.05), n
+    gaps = np.diff(v) > np.maximum(gap_m, gap_rel * v[1:])
+    cid = np.concatenate(([0], np.cumsum(gaps)))
+    counts = np.bincount(cid)
+    need = max(min_points, int(np.ceil(min_fraction * n)))
+    ok = np.flatnonzero(counts >= need)
+    c = int(ok[0]) if len(ok) else int(np.argmax(counts))
+    sel = v[cid == c]
+    med = float(np.median(sel))
+    mad = float(np.median(np.abs(sel - med)))
+    return med, max(1.4826 * mad / np.sqrt(len(sel)), 0.02), len(sel)
+
+
+class CloudQueue:
+    """The last clouds as depth images, bounded by ``max_points`` (sum of cloud sizes) and ``max_age_s``."""
+
+    def __init__(self, camera: Camera, T_cam_lidar: np.ndarray, max_points: int = 200_000, max_age_s: float = 1.0, min_box_points: int = 3, point_filter=None):
+        self.point_filter = point_filter  # e.g. a SurfaceFilter: points -> keep mask
+        self.camera = camera
+        self.T_cam_lidar = np.asarray(T_cam_lidar, float)
+        self.max_points = int(max_points)
+        self.max_age_s = float(max_age_s)
+        self.min_box_points = int(min_box_points)
+        self.images: deque[DepthImage] = deque()
+        self.points = 0
+        self.dropped = 0
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def push(self, t: float, points_lidar: np.ndarray) -> DepthImage:
+        n = len(points_lidar)
+        if self.point_filter is not None and n:
+            points_lidar = points_lidar[self.point_filter(points_lidar)]
+        img = make_depth_image(self.camera, self.T_cam_lidar, points_lidar, t)
+        img.n_points = n  # the budget counts what the sensor delivered
+        self.images.append(img)
+        self.points += img.n_points
+        self.expire(t)
+        return img
+
+    def expire(self, now: float) -> None:
+        """Drop the oldest clouds while over the point budget (always keeping the newest) or older than the limit."""
+        while len(self.images) > 1 and (self.points > self.max_points or now - self.images[0].t > self.max_age_s):
+            old = self.images.popleft()
+            self.points -= old.n_points
+            self.dropped += 1
+        if self.images and now - self.images[0].t > self.max_age_s:  # even the newest is stale
+            old = self.images.popleft()
+            self.points -= old.n_points
+            self.dropped += 1
+
+    def clear(self) -> None:
+        self.images.clear()
+        self.points = 0
+
+    def depth_in_box(self, xyxy, t: float | None = None, shrink: float = 0.1, max_age_s: float | None = None, exclude: np.ndarray | None = None) -> BoxDepth | None:
+        """Robust depth for a detection box from the newest depth image, falling back to older ones while the box
+        holds fewer than ``min_box_points`` points (their points are pooled, newest first), back to ``max_age_s``
+        (default: the queue's age limit; a moving robot's old points are in the wrong place, so the loop uses a
+        shorter limit than the queue). ``shrink`` trims that fraction of the box width/height on each side.
+        ``exclude``: rectangles (K,4) whose pixels are ignored — the boxes of robots standing in front of this one."""
+        if not self.images:
+            return None
+        x1, y1, x2, y2 = (float(v) for v in xyxy)
+        dx, dy = (x2 - x1) * shrink, (y2 - y1) * shrink
+        x1, x2, y1, y2 = x1 + dx, x2 - dx, y1 + dy, y2 - dy
+        t_now = self.images[-1].t if t is None else float(t)
+        pooled = []
+        n = 0
+        used = 0
+        limit = self.max_age_s if max_age_s is None else min(float(max_age_s), self.max_age_s)
+        for img in reversed(self.images):
+            if t_now - img.t > limit:
+                break
+            vals = img.values_in_box(x1, y1, x2, y2, exclude)
+            used += 1
+            if len(vals):
+                pooled.append(vals)
+                n += len(vals)
+                if n >= self.min_box_points:
+                    break
+        if not n:
+            return None
+        vals = np.concatenate(pooled)
+        r = robust_depth(vals)
+        if r is None:
+            return None
+        depth, sigma, k = r
+        return BoxDepth(depth, sigma, k, n, t_now - img.t, used)

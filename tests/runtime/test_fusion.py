@@ -1,0 +1,136 @@
+"""Cloud queue, per-cloud depth images and box depth against brute-force references and known geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from runtime_scene import robot_cloud
+
+from radarcal.geometry import invert_T, transform_points
+from radarcal.runtime.fusion import CloudQueue, make_depth_image, robust_depth
+
+
+def test_depth_image_is_nearest_per_pixel(station):
+    cam, T = station["camera"], station["T_cam_lidar"]
+    rng = np.random.default_rng(1)
+    pts = np.column_stack([rng.uniform(1, 40, 50000), rng.uniform(-15, 15, 50000), rng.uniform(-3, 3, 50000)]).astype(np.float32)
+    pts = np.vstack([pts, pts[:5000] * 1.01])  # many pixels hit twice, the nearer must win
+    img = make_depth_image(cam, T, pts, t=0.0)
+    # brute-force reference: loop-free np.minimum.at into a dense image
+    p_cam = transform_points(T, pts.astype(np.float64))
+    uv, valid = cam.project(p_cam)
+    ui, vi = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+    ok = valid & (ui >= 0) & (ui < 1280) & (vi >= 0) & (vi < 1024) & (p_cam[:, 2] > 0.3)
+    ref = np.full(1280 * 1024, np.inf)
+    np.minimum.at(ref, (vi[ok] * 1280 + ui[ok]).astype(np.int64), p_cam[ok, 2])
+    ref = np.where(np.isinf(ref), np.nan, ref).reshape(1024, 1280)
+    dense = img.dense()
+    assert np.array_equal(np.isnan(dense), np.isnan(ref))
+    np.testing.assert_allclose(dense[~np.isnan(dense)], ref[~np.isnan(ref)], rtol=2e-6)
+    assert np.all(np.diff(img.pix) > 0)
+    # box query == dense slice
+    for box in [(100.2, 200.7, 400.0, 380.0), (0, 0, 1279, 1023), (-50, -50, 10, 10), (600, 600, 600, 600)]:
+        got = np.sort(img.values_in_box(*box))
+        u0, v0 = max(int(np.ceil(box[0])), 0), max(int(np.ceil(box[1])), 0)
+        u1, v1 = min(int(np.floor(box[2])), 1279), min(int(np.floor(box[3])), 1023)
+        want = dense[v0 : v1 + 1, u0 : u1 + 1]
+        np.testing.assert_array_equal(got, np.sort(want[~np.isnan(want)]))
+
+
+def test_robust_depth_picks_the_robot_not_background_or_strays():
+    rng = np.random.default_rng(2)
+    robot = 10.0 + rng.normal(0, 0.04, 40)
+    background = 24.0 + rng.normal(0, 0.3, 150)
+    stray = [3.0]
+    d, sigma, n = robust_depth(np.concatenate([robot, background, stray]))
+    assert abs(d - 10.0) < 0.03 and n == 40 and sigma < 0.05
+    assert robust_depth(np.array([12.0, 30.0]))[0] == 12.0  # few points: the nearest
+    assert robust_depth(np.array([])) is None
+    assert robust_depth(np.array([np.nan])) is None
+
+
+def test_queue_budget_age_and_fallback(station):
+    cam, T_cam_lidar, T_field_cam = station["camera"], station["T_cam_lidar"], station["T_field_cam"]
+    T_lidar_field = invert_T(T_field_cam @ T_cam_lidar)
+    q = CloudQueue(cam, T_cam_lidar, max_points=1000, max_age_s=0.5)
+    robot = transform_points(T_lidar_field, robot_cloud((12.0, 7.0), n=300))
+    q.push(0.0, robot)
+    # the box around the robot: project its centre column
+    T_cam_field = invert_T(T_field_cam)
+    uv, _ = cam.project(transform_points(T_cam_field, np.array([[12.0, 7.25, 0.0], [12.0, 6.75, 0.5]])))
+    box = (uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max())
+    bd = q.depth_in_box(box, t=0.05)
+    z_front = transform_points(T_cam_field, np.array([[11.75, 7.0, 0.25]]))[0, 2]
+    assert bd is not None and abs(bd.depth - z_front) < 0.08 and bd.images_used == 1
+    # a newer cloud that misses the box (points elsewhere): falls back to the older image
+    other = transform_points(T_lidar_field, robot_cloud((20.0, 2.0), n=300))
+    q.push(0.1, other)
+    bd2 = q.depth_in_box(box, t=0.12)
+    assert bd2 is not None and bd2.images_used == 2 and abs(bd2.depth - bd.depth) < 1e-6 and bd2.age_s == pytest.approx(0.12)
+    # the point budget drops the oldest cloud (robot) once a third arrives -> the box is empty -> None
+    q.push(0.2, other)
+    assert len(q) == 3 or q.points <= 1000
+    q.push(0.3, other)
+    assert q.points <= 1000 and q.dropped >= 1
+    assert q.depth_in_box(box, t=0.3) is None
+    # the age limit
+    q2 = CloudQueue(cam, T_cam_lidar, max_points=10**6, max_age_s=0.5)
+    q2.push(0.0, robot)
+    q2.push(0.4, other)
+    assert q2.depth_in_box(box, t=0.45) is not None
+    q2.push(0.7, other)
+    assert len(q2) == 2 and q2.depth_in_box(box, t=0.7) is None
+    q2.expire(5.0)
+    assert len(q2) == 0 and q2.depth_in_box(box) is None
+
+
+def test_surface_filter_terrain_walls_and_structures(station):
+    from radarcal.runtime.fusion import SurfaceFilter
+
+    class Field:  # a 0.6 m platform over x 10..14, y 5..9 on flat ground
+        @staticmethod
+        def surface_z(xy):
+            return np.where((xy[:, 0] > 10) & (xy[:, 0] < 14) & (xy[:, 1] > 5) & (xy[:, 1] < 9), 0.6, 0.0)
+
+    T_field_lidar = station["T_field_cam"] @ station["T_cam_lidar"]
+    T_lidar_field = np.linalg.inv(T_field_lidar)
+    outpost = {"center": [20.0, 3.0, 0.0], "size": [0.6, 0.6, 1.3], "yaw": 0.3}
+    f = SurfaceFilter(T_field_lidar, Field.surface_z, structures=[outpost])
+    pts = np.array([
+        [5.0, 2.0, 0.01],     # ground: drop
+        [12.0, 7.0, 0.62],    # platform top: drop
+        [10.0, 7.0, 0.4],     # on the platform's wall (x = 10): drop
+        [12.0, 7.0, 1.0],     # a robot standing on the platform: keep
+        [5.0, 2.0, 0.3],      # a robot on the ground: keep
+        [20.1, 3.1, 0.9],     # the outpost: drop
+        [21.0, 3.0, 0.3],     # a robot beside the outpost: keep
+    ])  # fmt: skip
+    keep = f(transform_points(T_lidar_field, pts))
+    assert keep.tolist() == [False, False, False, True, True, False, True]
+    np.testing.assert_allclose(f.heights(transform_points(T_lidar_field, pts[[0, 3]])), [0.01, 0.4], atol=1e-5)
+
+
+def test_box_exclusion_rectangles(station):
+    cam, T = station["camera"], station["T_cam_lidar"]
+    from radarcal.geometry import invert_T
+
+    T_lidar_field = invert_T(station["T_field_cam"] @ T)
+    q = CloudQueue(cam, T)
+    near = robot_cloud((12.0, 7.4), height=0.8, n=400)  # tall enough to hide the far robot's lower part
+    far = robot_cloud((16.0, 7.3), n=400)
+    q.push(0.0, transform_points(T_lidar_field, np.vstack([near, far])))
+    T_cam_field = invert_T(station["T_field_cam"])
+
+    def box(c, h=0.45):
+        ang = np.linspace(0, 2 * np.pi, 32)
+        p = np.vstack([np.column_stack([c[0] + 0.25 * np.cos(ang), c[1] + 0.25 * np.sin(ang), np.full(32, z)]) for z in (0, h)])
+        uv, _ = cam.project(transform_points(T_cam_field, p))
+        return np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
+
+    b_near, b_far = box((12.0, 7.4), 0.8), box((16.0, 7.3))
+    assert b_near[3] > b_far[3]  # the nearer robot's box reaches lower in the image
+    z_far = transform_points(T_cam_field, np.array([[15.8, 7.3, 0.3]]))[0, 2]
+    plain = q.depth_in_box(b_far)
+    excl = q.depth_in_box(b_far, exclude=b_near[None])
+    assert plain.depth < z_far - 3  # the occluding robot wins without exclusion
+    assert abs(excl.depth - z_far) < 0.3

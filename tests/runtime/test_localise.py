@@ -1,0 +1,115 @@
+"""Localisation (depth and ground paths) and Kalman tracks against known geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+from runtime_scene import robot_cloud
+
+from radarcal.geometry import invert_T, transform_points
+from radarcal.runtime.fusion import CloudQueue
+from radarcal.runtime.localise import Localiser, flat_ground_intersect
+from radarcal.runtime.tracks import TrackManager
+
+
+def _front(c, cam_xy, r, z):
+    d = np.asarray(c[:2], float) - cam_xy
+    d /= np.linalg.norm(d)
+    return np.array([c[0] - r * d[0], c[1] - r * d[1], z])
+
+
+def test_depth_and_ground_paths_are_exact_on_ideal_inputs(station):
+    cam, T_field_cam = station["camera"], station["T_field_cam"]
+    T_cam_field = invert_T(T_field_cam)
+    loc = Localiser(cam, T_field_cam, None, robot_radius_m=0.3, visible_depth_factor=1.0)
+    centres = np.array([[5.0, 3.0], [14.0, 12.0], [26.0, 7.5], [9.0, 7.6]])
+    cam_xy = T_field_cam[:2, 3]
+    front_mid = np.array([_front(c, cam_xy, 0.3, 0.25) for c in centres])
+    front_bottom = np.array([_front(c, cam_xy, 0.3, 0.0) for c in centres])
+    p_cam = transform_points(T_cam_field, front_mid)
+    uv_mid, _ = cam.project(p_cam)
+    uv_bot, _ = cam.project(transform_points(T_cam_field, front_bottom))
+    np.testing.assert_allclose(loc.from_depth(uv_mid, p_cam[:, 2])[:, :2], centres, atol=1e-5)  # 10 um
+    np.testing.assert_allclose(loc.from_ground(uv_bot)[:, :2], centres, atol=1e-5)
+    # locate(): boxes whose centre is uv_mid and bottom is uv_bot; NaN depth -> ground
+    boxes = np.column_stack([uv_bot[:, 0] - 20, 2 * uv_mid[:, 1] - uv_bot[:, 1], uv_bot[:, 0] + 20, uv_bot[:, 1]])
+    depth = p_cam[:, 2].copy()
+    depth[[1, 3]] = np.nan
+    res = loc.locate(boxes, depth)
+    assert res.source.tolist() == ["depth", "ground", "depth", "ground"]
+    # one box column serves both pixels; a pitched camera tilts verticals off-centre, so a few cm at 6 m
+    np.testing.assert_allclose(res.p_field[:, :2], centres, atol=0.05)
+    assert np.all(res.sigma > 0) and res.sigma[2] < res.sigma[1] * 5
+    # a ray above the horizon misses the ground
+    up = flat_ground_intersect(np.array([[0, 0, 2.0]]), np.array([[1.0, 0, 0.1]]))
+    assert np.isnan(up).all()
+    assert np.isnan(loc.from_ground(np.array([[640.0, 0.0]]))).all()
+
+
+def test_ray_table_matches_camera_unproject(station):
+    from radarcal.runtime.localise import RayTable
+
+    cam = station["camera"]
+    uv = np.random.default_rng(4).uniform([-0.5, -0.5], [1279.5, 1023.5], (2000, 2))
+    np.testing.assert_allclose(RayTable(cam, refine=2).rays(uv), cam.unproject(uv), atol=1e-10)
+    np.testing.assert_allclose(RayTable(cam).rays(uv), cam.unproject(uv), atol=1e-6)
+    assert np.abs(RayTable(cam, refine=0).rays(uv) - cam.unproject(uv)).max() < 1e-3  # the table alone
+
+
+def test_lidar_depth_localisation_of_simulated_robots(station):
+    cam, T_field_cam, T_cam_lidar = station["camera"], station["T_field_cam"], station["T_cam_lidar"]
+    T_lidar_field = invert_T(T_field_cam @ T_cam_lidar)
+    T_cam_field = invert_T(T_field_cam)
+    rng = np.random.default_rng(5)
+    centres = np.column_stack([rng.uniform(4, 27, 12), rng.uniform(1, 14, 12)])
+    ground = np.column_stack([rng.uniform(0, 28, 20000), rng.uniform(0, 15, 20000), np.zeros(20000)])
+    clouds = [robot_cloud(c, 0.25, 0.45, 150, rng) for c in centres]
+    q = CloudQueue(cam, T_cam_lidar)
+    q.push(0.0, transform_points(T_lidar_field, np.vstack(clouds + [ground])))
+    loc = Localiser(cam, T_field_cam, None, robot_radius_m=0.25)
+    boxes = []
+    for c in centres:  # tight box of the whole cylinder
+        ang = np.linspace(0, 2 * np.pi, 64)
+        ring = np.column_stack([c[0] + 0.25 * np.cos(ang), c[1] + 0.25 * np.sin(ang)])
+        pts = np.vstack([np.column_stack([ring, np.zeros(64)]), np.column_stack([ring, np.full(64, 0.45)])])
+        uv, _ = cam.project(transform_points(T_cam_field, pts))
+        boxes.append([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
+    boxes = np.array(boxes)
+    inside = (boxes[:, 0] > 0) & (boxes[:, 2] < 1279) & (boxes[:, 1] > 0) & (boxes[:, 3] < 1023)
+    assert inside.sum() >= 6
+    boxes, centres = boxes[inside], centres[inside]
+    bds = [q.depth_in_box(b) for b in boxes]
+    depth = np.array([b.depth if b else np.nan for b in bds])
+    res = loc.locate(boxes, depth, np.array([b.sigma if b else np.nan for b in bds]))
+    err = np.linalg.norm(res.p_field[:, :2] - centres, axis=1)
+    assert (res.source == "depth").all()
+    assert np.median(err) < 0.08 and err.max() < 0.25, err
+    res_g = loc.locate(boxes, np.full(len(boxes), np.nan))
+    err_g = np.linalg.norm(res_g.p_field[:, :2] - centres, axis=1)
+    assert (res_g.source == "ground").all() and np.median(err_g) < 0.1, err_g
+
+
+def test_kalman_tracks_smooth_gate_and_reinit():
+    rng = np.random.default_rng(3)
+    tm = TrackManager(accel_sigma=1.0, reinit_after=3)
+    t = np.arange(0, 6, 1 / 30)
+    truth = np.column_stack([2 + 1.5 * t, 5 + 0.5 * t])
+    raw_err, filt_err = [], []
+    for i, ti in enumerate(t):
+        z = truth[i] + rng.normal(0, 0.15, 2)
+        if i == 100:
+            z = truth[i] + [6.0, 0.0]  # a single wild measurement: gated out
+        tracks = tm.update(ti, [("blue_3", z, 0.15, "depth")])
+        tr = tracks[0]
+        if i > 30:
+            raw_err.append(np.linalg.norm(z - truth[i]))
+            filt_err.append(np.linalg.norm(tr.xy - truth[i]))
+        if i == 100:
+            assert tr.rejected == 1 and np.linalg.norm(tr.xy - truth[i]) < 0.3
+    assert np.median(filt_err) < 0.6 * np.median(raw_err)
+    assert np.linalg.norm(tm.tracks["blue_3"].x[2:] - [1.5, 0.5]) < 0.2  # velocity estimated
+    # the robot really jumped (respawn): after 3 consistent far measurements the track restarts there
+    for k in range(3):
+        tracks = tm.update(6.0 + k / 30, [("blue_3", np.array([20.0, 2.0]), 0.15, "ground")])
+    assert np.linalg.norm(tracks[0].xy - [20.0, 2.0]) < 1e-6 and tracks[0].source == "ground"
+    # unseen tracks are dropped after max_coast_s
+    assert tm.update(8.0, []) == []
