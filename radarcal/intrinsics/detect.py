@@ -173,15 +173,29 @@ def edge_width_px(gray: np.ndarray, uv: np.ndarray, gaps: np.ndarray) -> float:
     return float(np.median(width))
 
 
-def normalise_order(uv: np.ndarray, grid_shape: tuple[int, int]) -> np.ndarray:
-    """Make a full chessboard detection's order canonical: corner 0 nearest the image top-left (180° flip, and
-    for square grids a 90° turn). Harmless for intrinsics; needed to pair stereo views."""
+def normalise_order(uv: np.ndarray, grid_shape: tuple[int, int], reference: np.ndarray | None = None) -> np.ndarray:
+    """Canonical order of a full chessboard detection (180° flip, and a 90° turn for square grids).
+
+    Without ``reference``: corner 0 nearest the image top-left. With ``reference`` (the same board seen by the
+    other camera of a stereo pair, (N,2)): the order whose row and column directions agree best with it.
+    Harmless for intrinsics; needed to pair stereo views.
+    """
     nr, nc = grid_shape
     g = np.asarray(uv, float).reshape(nr, nc, 2)
     cands = [g, g[::-1, ::-1]]
     if nr == nc:
         cands += [np.rot90(g, 1, axes=(0, 1)), np.rot90(g, 3, axes=(0, 1))]
-    best = min(cands, key=lambda c: c[0, 0].sum())
+    if reference is None:
+        best = min(cands, key=lambda c: c[0, 0].sum())
+    else:
+        ref = np.asarray(reference, float).reshape(nr, nc, 2)
+        axes_ref = np.concatenate([ref[0, -1] - ref[0, 0], ref[-1, 0] - ref[0, 0]])
+
+        def agreement(c):
+            a = np.concatenate([c[0, -1] - c[0, 0], c[-1, 0] - c[0, 0]])
+            return -float(a @ axes_ref) / (np.linalg.norm(a) * np.linalg.norm(axes_ref) + 1e-12)
+
+        best = min(cands, key=agreement)
     return best.reshape(-1, 2).copy()
 
 
