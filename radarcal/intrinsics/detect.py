@@ -119,7 +119,7 @@ def neighbour_gaps(uv: np.ndarray, ids: np.ndarray, grid_shape: tuple[int, int])
     for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
         nb = pad[1 + dr : 1 + dr + nr, 1 + dc : 1 + dc + nc]
         d.append(np.linalg.norm(nb - grid, axis=2))
-    gaps = np.nanmin(np.stack(d), axis=0) if len(ids) else np.zeros((nr, nc))
+    gaps = np.fmin.reduce(np.stack(d), axis=0) if len(ids) else np.zeros((nr, nc))
     gaps = np.where(np.isnan(gaps), np.inf, gaps)
     return gaps.reshape(-1)[ids]
 
@@ -261,7 +261,10 @@ def detect_charuco(gray: np.ndarray, board: BoardSpec, legacy: bool | None = Non
                 best = Detection(False, image_size=size, reason=why, legacy=lay, n_markers=n_mk)
     if not best.ok:
         return best
-    return _finish(gray, best, board, True, subpix_factor)
+    # the window must stay inside the white margin between a corner's squares and the markers: on PhotonVision's
+    # boards (marker 0.75 square) 0.3 x gap gave RMS 0.46 px, 0.1 x gap 0.22 px (OpenCV's own refinement 0.23 px)
+    margin_factor = 0.8 * (1.0 - board.marker / board.square) / 2.0
+    return _finish(gray, best, board, True, min(subpix_factor, margin_factor))
 
 
 def detect_board(gray: np.ndarray, board: BoardSpec, subpix_factor: float = 0.3) -> Detection:
