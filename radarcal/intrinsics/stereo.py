@@ -2,8 +2,8 @@
 
 Pure numeric core. Unknowns: T_cam1_cam0 (rotation vector + translation) and the board pose in cam0 for every pair;
 residuals: the corners of both images, projected with radarcal's :class:`~radarcal.camera.Camera` (any model,
-fisheye included, so no OpenCV ``stereoCalibrate`` API differences). Solved with scipy's Levenberg-Marquardt-type
-``least_squares`` from a PnP start (median of per-pair relative poses); σ of the 6 parameters and of the baseline
+fisheye included, so no OpenCV ``stereoCalibrate`` API differences). Solved by Levenberg-Marquardt on the
+block-sparse problem (numeric Jacobian, one column group per parameter kind) from a PnP start (median of per-pair relative poses); σ of the 6 parameters and of the baseline
 from the Jacobian scaled by the residual noise. Corner pairs whose residual exceeds ``k_sigma`` σ are dropped once
 and the problem re-solved.
 """
@@ -14,12 +14,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.sparse import coo_matrix
 from scipy.spatial.transform import Rotation
 
 from radarcal import geometry
 from radarcal.camera import Camera
+from radarcal.intrinsics._blas import single_thread_blas
 
 __all__ = ["StereoResult", "stereo_calibrate", "pair_by_name"]
 
@@ -62,6 +61,7 @@ def _pnp(cam: Camera, obj: np.ndarray, img: np.ndarray) -> np.ndarray:
     return geometry.T_from_rotvec(rv.ravel(), tv.ravel())
 
 
+@single_thread_blas
 def stereo_calibrate(cam0: Camera, cam1: Camera, object_points: list[np.ndarray], image_points0: list[np.ndarray], image_points1: list[np.ndarray], k_sigma: float = 4.0) -> StereoResult:
     """Solve T_cam1_cam0. object_points[p] (N_p,3) are seen as image_points0[p] in cam0 and image_points1[p] in cam1."""
     n = len(object_points)
@@ -98,19 +98,71 @@ def stereo_calibrate(cam0: Camera, cam1: Camera, object_points: list[np.ndarray]
             return np.nan_to_num(r, nan=1e3)
 
         m = len(o)
-        rows = np.concatenate([2 * np.arange(m), 2 * np.arange(m) + 1, 2 * m + 2 * np.arange(m), 2 * m + 2 * np.arange(m) + 1])
-        pt = np.tile(np.arange(m), 4)
-        rr_ = np.repeat(rows, 6)
-        cc_ = (6 + 6 * vid[pt])[:, None] + np.arange(6)[None, :]
-        r_all = np.concatenate([rr_, np.repeat(np.arange(4 * m), 6)])
-        c_all = np.concatenate([cc_.ravel(), np.tile(np.arange(6), 4 * m)])
-        S = coo_matrix((np.ones(len(r_all), int), (r_all, c_all)), shape=(4 * m, 6 + 6 * n))
-        sol = least_squares(fun, x0, jac_sparsity=S, method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=200)
-        return sol, fun, vid
+        # each residual row depends on the 6 relative parameters and the 6 pose parameters of its own pair
+        rows_pair = np.concatenate([np.repeat(vid, 2), np.repeat(vid, 2)])
 
-    sol, fun, vid = solve(x0, inl)
+        def jac(x):
+            Jr = np.empty((4 * m, 6))
+            Jp = np.empty((4 * m, 6))
+            for k in range(6):
+                h = 1e-7 if k < 3 else 1e-7 * max(1.0, float(np.abs(x[3:6]).max()))
+                e = np.zeros(6)
+                e[k] = h
+                xp, xm = x.copy(), x.copy()
+                xp[:6] += e
+                xm[:6] -= e
+                Jr[:, k] = -(fun(xp) - fun(xm)) / (2 * h)
+                xp, xm = x.copy(), x.copy()
+                xp[6:] += np.tile(e, n)
+                xm[6:] -= np.tile(e, n)
+                Jp[:, k] = -(fun(xp) - fun(xm)) / (2 * h)
+            return Jr, Jp
+
+        def normal(Jr, Jp, r):
+            P = 6 + 6 * n
+            N = np.zeros((P, P))
+            g = np.zeros(P)
+            N[:6, :6] = Jr.T @ Jr
+            g[:6] = Jr.T @ r
+            for p in range(n):  # loop over pairs, not points
+                sel = rows_pair == p
+                s0 = 6 + 6 * p
+                A = Jp[sel]
+                N[:6, s0 : s0 + 6] = Jr[sel].T @ A
+                N[s0 : s0 + 6, :6] = N[:6, s0 : s0 + 6].T
+                N[s0 : s0 + 6, s0 : s0 + 6] = A.T @ A
+                g[s0 : s0 + 6] = A.T @ r[sel]
+            return N, g
+
+        x = x0.copy()
+        r = fun(x)
+        cost = r @ r
+        lam = 1e-3
+        for _ in range(50):  # Levenberg-Marquardt (residual = observed - projected, J = d residual / dx)
+            Jr, Jp = jac(x)
+            N, g = normal(Jr, Jp, r)
+            improved = False
+            for _inner in range(10):
+                A = N + lam * np.diag(np.diag(N) + 1e-12)
+                dx = -np.linalg.solve(A, g)
+                r_new = fun(x + dx)
+                c_new = r_new @ r_new
+                if c_new < cost:
+                    x, r, improved = x + dx, r_new, True
+                    rel_change = (cost - c_new) / max(cost, 1e-30)
+                    cost = c_new
+                    lam = max(lam / 10, 1e-9)
+                    break
+                lam *= 10
+            if not improved or rel_change < 1e-12:
+                break
+        Jr, Jp = jac(x)
+        N, _g = normal(Jr, Jp, r)
+        return x, N, fun, vid
+
+    x, N, fun, vid = solve(x0, inl)
     # one round of corner-pair rejection
-    r = fun(sol.x)
+    r = fun(x)
     m = len(vid)
     ra = r[: 2 * m].reshape(-1, 2)
     rb = r[2 * m :].reshape(-1, 2)
@@ -123,15 +175,14 @@ def stereo_calibrate(cam0: Camera, cam1: Camera, object_points: list[np.ndarray]
         inl = [mk.copy() for mk in inl]
         for p in range(n):
             inl[p][flat[starts[p] : starts[p + 1]][bad[starts[p] : starts[p + 1]]]] = False
-        sol, fun, vid = solve(sol.x, inl)
-    r = fun(sol.x)
-    J = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-    dof = max(r.size - J.shape[1], 1)
+        x, N, fun, vid = solve(x, inl)
+    r = fun(x)
+    dof = max(r.size - N.shape[0], 1)
     noise = float(np.sqrt(np.sum(r**2) / dof))
-    JtJ = J.T @ J
+    JtJ = N
     d = np.sqrt(np.maximum(np.diag(JtJ), 1e-30))
     cov = noise**2 * np.linalg.pinv(JtJ / d[:, None] / d[None, :]) / d[:, None] / d[None, :]
-    rel6, poses = unpack(sol.x)
+    rel6, poses = unpack(x)
     T = geometry.T_from_rotvec(rel6[:3], rel6[3:])
     t = rel6[3:]
     base = float(np.linalg.norm(t))
