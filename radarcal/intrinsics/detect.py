@@ -308,8 +308,8 @@ def choose_charuco_layout(grays: list[np.ndarray], board: BoardSpec) -> tuple[bo
     return (counts[True] > counts[False]), counts
 
 
-def diagnose_board_size(gray: np.ndarray, board: BoardSpec, max_extra: int = 3) -> str | None:
-    """When the given board is not found: look for the same kind of board with other counts (swapped, ±1..±3)
+def diagnose_board_size(gray: np.ndarray, board: BoardSpec, max_extra: int = 2) -> str | None:
+    """When the given board is not found: look for the same kind of board with other counts (swapped, ±1..±2)
     and return a one-line hint (``"a 9x6 chessboard is visible; you gave 10x6"``) or None."""
     if gray.ndim == 3:
         gray = cv2.cvtColor(gray, cv2.COLOR_BGR2GRAY)
