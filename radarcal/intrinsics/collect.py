@@ -1,12 +1,17 @@
 """The I/O edge of ``radarcal intrinsics``: expand SOURCE arguments, read images / video frames, and detect the
 board in parallel (``concurrent.futures.ProcessPoolExecutor``). Returns one :class:`ViewInput` per image/frame
-with either a :class:`~radarcal.intrinsics.detect.Detection` or the reason it could not be read."""
+with either a :class:`~radarcal.intrinsics.detect.Detection` or the reason it could not be read.
+
+Workers come from a ``forkserver`` (clean processes; forking after OpenCV/BLAS threads ran can deadlock), so a
+script calling :func:`detect_files` with ``workers > 1`` needs the usual ``if __name__ == "__main__":`` guard;
+without it the pool fails and detection falls back to this process."""
 
 from __future__ import annotations
 
 import glob
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable
@@ -66,7 +71,10 @@ def _pool(workers: int) -> ProcessPoolExecutor:
     import multiprocessing as mp
 
     method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-    return ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method), initializer=_worker_init)
+    ctx = mp.get_context(method)
+    if method == "forkserver":  # import the detector once in the server; workers fork from it ready to go
+        ctx.set_forkserver_preload(["radarcal.intrinsics.collect"])
+    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init)
 
 
 def _detect_one(path: str, board: BoardSpec) -> ViewInput:
@@ -107,16 +115,22 @@ def detect_files(paths: list[Path], board: BoardSpec, workers: int = 2, on_done:
             if on_done:
                 on_done(i + 1, len(names))
         return out  # type: ignore[return-value]
-    with _pool(workers) as ex:
-        futs = {ex.submit(_detect_one, n, board): i for i, n in enumerate(names)}
-        for k, f in enumerate(as_completed(futs), 1):
-            i = futs[f]
-            try:
-                out[i] = f.result()
-            except Exception as e:  # noqa: BLE001 - one bad file must not end the run
-                out[i] = ViewInput(names[i], None, f"unreadable: {e.__class__.__name__}: {e}")
-            if on_done:
-                on_done(k, len(names))
+    try:
+        with _pool(workers) as ex:
+            futs = {ex.submit(_detect_one, n, board): i for i, n in enumerate(names)}
+            for k, f in enumerate(as_completed(futs), 1):
+                i = futs[f]
+                try:
+                    out[i] = f.result()
+                except BrokenProcessPool:
+                    raise
+                except Exception as e:  # noqa: BLE001 - one bad file must not end the run
+                    out[i] = ViewInput(names[i], None, f"unreadable: {e.__class__.__name__}: {e}")
+                if on_done:
+                    on_done(k, len(names))
+    except (BrokenProcessPool, RuntimeError, OSError):
+        # no worker processes (e.g. a script without the ``if __name__ == "__main__":`` guard): do it here
+        return detect_files(paths, board, 1, on_done)
     return out  # type: ignore[return-value]
 
 
