@@ -127,3 +127,21 @@ def test_rendered_1280x1024_accuracy(tmp_path, capsys):
     kinds = _kinds(out)
     rejected = {k.rsplit("/", 1)[-1]: v for k, v in s["rejected"].items()}
     assert all(rejected[f].startswith("outlier") for f, k in kinds.items() if k == "bad")
+
+
+def test_rendered_fisheye_auto_model(tmp_path, capsys):
+    """A 190° equidistant lens (OpenCV's own fisheye start diverges here): --model auto picks fisheye and
+    recovers the truth; pinhole5 is rejected by its RMS."""
+    out = tmp_path / "fish"
+    _synth(out, "--model", "fisheye", "--size", "640x512", "--views", "12", "--partial", "0", "--blank", "0", "--corrupt", "0", "--seed", "7")
+    code, o, err = _intrinsics(capsys, str(out), "--cols", "9", "--rows", "6", "--square", "0.025", "--model", "auto", "--bundle", str(tmp_path / "b.yaml"), "--json")
+    assert code == 0, err
+    s = json.loads(o)["cameras"][0]
+    assert s["model"] == "fisheye"
+    truth = load_board_truth(out)
+    K = np.asarray(s["K"])
+    for i, j, key in ((0, 0, "fx"), (1, 1, "fy"), (0, 2, "cx"), (1, 2, "cy")):
+        true = truth.camera.K[i, j]
+        assert abs(K[i, j] - true) < 3 * s["sigma"][key] + 0.05, (key, K[i, j], true)
+    rows = {r["model"]: r for r in s["model_choice"]["table"]}
+    assert rows["pinhole5"]["rms_px"] > 5 * s["rms_px"]
