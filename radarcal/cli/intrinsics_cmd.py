@@ -37,7 +37,8 @@ def _collect(sources: list[str], board: BoardSpec, workers: int, label: str) -> 
         else:
             views += detect_files(images, board, workers)
     for v in videos:
-        err_console.print(f"sampling frames of {v} ...") if err_console.is_terminal else None
+        if err_console.is_terminal:
+            err_console.print(f"sampling frames of {v} ...")
         views += sample_video(v, board, workers=workers)
     return views, board, layout_info, images + videos
 

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from radarcal.errors import InputError
+from radarcal.io.images import read_image
 from radarcal.intrinsics.detect import BoardSpec, Detection, choose_charuco_layout, detect_board, diagnose_board_size
 from radarcal.intrinsics.select import novel_mask, view_descriptor
 
@@ -78,14 +79,10 @@ def _pool(workers: int) -> ProcessPoolExecutor:
 
 
 def _detect_one(path: str, board: BoardSpec) -> ViewInput:
-    data = np.fromfile(path, dtype=np.uint8) if os.path.isfile(path) else None
-    if data is None:
-        return ViewInput(path, None, "unreadable: file not found")
-    if data.size == 0:
-        return ViewInput(path, None, "unreadable: empty file")
-    gray = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
-    if gray is None or gray.size == 0:
-        return ViewInput(path, None, "unreadable: corrupt or not an image")
+    try:
+        gray = read_image(path, grayscale=True)
+    except InputError as e:
+        return ViewInput(path, None, f"unreadable: {e.message}")
     return ViewInput(path, detect_board(gray, board))
 
 
