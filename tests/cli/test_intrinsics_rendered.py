@@ -145,3 +145,16 @@ def test_rendered_fisheye_auto_model(tmp_path, capsys):
         assert abs(K[i, j] - true) < 3 * s["sigma"][key] + 0.05, (key, K[i, j], true)
     rows = {r["model"]: r for r in s["model_choice"]["table"]}
     assert rows["pinhole5"]["rms_px"] > 5 * s["rms_px"]
+
+
+def test_rendered_charuco_stereo_pairs_by_ids(tmp_path, capsys):
+    out = tmp_path / "cst"
+    _synth(out, "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--dict", "DICT_4X4_1000", "--size", "640x480", "--views", "9", "--partial", "1", "--blank", "0", "--corrupt", "0", "--stereo", "0.1", "--seed", "6")
+    code, o, err = _intrinsics(capsys, str(out / "cam0"), "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--right", str(out / "cam1"), "--bundle", str(tmp_path / "b.yaml"), "--json", "--no-crossval")
+    assert code == 0, err
+    t = json.loads((out / "truth.json").read_text())
+    s = json.loads(o)["stereo"]
+    assert s["pairs"] >= 8
+    _deg, m = geometry.pose_error(np.asarray(s["T_cam1_cam0"]), np.asarray(t["stereo"]["T_cam1_cam0"]))
+    assert m < 3 * s["sigma"]["baseline_m"] + 3e-4
+    assert abs(s["baseline_m"] - 0.1) < 3 * s["sigma"]["baseline_m"] + 3e-4
