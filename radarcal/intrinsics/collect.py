@@ -78,7 +78,27 @@ def _pool(workers: int) -> ProcessPoolExecutor:
     return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init)
 
 
+def _truncated(path: str) -> str | None:
+    """A cheap end check for PNG (the IEND chunk closes every complete file): names a truncated PNG precisely and
+    keeps libpng from printing to stderr mid-run. JPEGs are left to the decoder (cameras append data after EOI)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - 64))
+            tail = f.read()
+    except OSError:
+        return None
+    if head.startswith(b"\x89PNG\r\n\x1a\n") and b"IEND" not in tail:
+        return "truncated PNG (no IEND chunk)"
+    return None
+
+
 def _detect_one(path: str, board: BoardSpec) -> ViewInput:
+    cut = _truncated(path)
+    if cut:
+        return ViewInput(path, None, f"unreadable: {cut}")
     try:
         gray = read_image(path, grayscale=True)
     except InputError as e:
