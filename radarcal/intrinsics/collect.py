@@ -122,15 +122,16 @@ def decide_layout(paths: list[Path], board: BoardSpec, sample: int = 6) -> tuple
     return (board if legacy is None else replace(board, legacy=legacy)), info
 
 
-def detect_files(paths: list[Path], board: BoardSpec, workers: int = 2, on_done: Callable[[int, int], None] | None = None) -> list[ViewInput]:
-    """Detect ``board`` in every file, ``workers`` processes in parallel (1 = in this process). Input order kept."""
+def detect_files(paths: list[Path], board: BoardSpec, workers: int = 2, on_done: Callable[[int, int, ViewInput], None] | None = None) -> list[ViewInput]:
+    """Detect ``board`` in every file, ``workers`` processes in parallel (1 = in this process). Input order kept.
+    ``on_done(k, n, view)`` is called as each file finishes (progress, live coverage)."""
     names = [str(p) for p in paths]
     out: list[ViewInput | None] = [None] * len(names)
     if workers <= 1 or len(names) < 2:
         for i, n in enumerate(names):
             out[i] = _detect_one(n, board)
             if on_done:
-                on_done(i + 1, len(names))
+                on_done(i + 1, len(names), out[i])
         return out  # type: ignore[return-value]
     try:
         with _pool(workers) as ex:
@@ -144,7 +145,7 @@ def detect_files(paths: list[Path], board: BoardSpec, workers: int = 2, on_done:
                 except Exception as e:  # noqa: BLE001 - one bad file must not end the run
                     out[i] = ViewInput(names[i], None, f"unreadable: {e.__class__.__name__}: {e}")
                 if on_done:
-                    on_done(k, len(names))
+                    on_done(k, len(names), out[i])
     except (BrokenProcessPool, RuntimeError, OSError):
         # no worker processes (e.g. a script without the ``if __name__ == "__main__":`` guard): do it here
         return detect_files(paths, board, 1, on_done)
