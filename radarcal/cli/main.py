@@ -13,6 +13,7 @@ from radarcal.cli import field_pnp_cmd, synth_field_cmd
 from radarcal.cli import synth_board_cmd
 from radarcal.cli import radar_lidar_cmd, synth_radar_cmd
 from radarcal.cli import run_cmd
+from radarcal.cli import intrinsics_cmd
 from radarcal.errors import InputError
 
 app = typer.Typer(name="radarcal", help="Calibration for camera / LiDAR / mmWave-radar rigs.", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -26,6 +27,7 @@ def _root(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on 
 
 app.add_typer(bundle_cmd.app, name="bundle")
 app.command("field-pnp")(field_pnp_cmd.field_pnp)
+app.command("intrinsics")(intrinsics_cmd.intrinsics)
 
 # `radarcal synth <scene>`: ground-truth scene generators (one module per scene registers its command here)
 synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
