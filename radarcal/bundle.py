@@ -40,6 +40,7 @@ import yaml
 from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.errors import InputError
+from radarcal.plain import to_plain as _plain
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -245,17 +246,6 @@ class Bundle:
         )
 
 
-def _plain(obj: Any) -> Any:
-    """numpy scalars/arrays -> plain Python for YAML."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
 
 
 # --- validation --------------------------------------------------------------------------------------------------

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from radarcal.errors import InputError
+from radarcal.plain import to_plain as _plain
 
 __all__ = ["FieldModel", "load_field", "field_from_dict", "BUILTIN_FIELDS", "builtin_field", "REQUIRED_LANDMARKS"]
 
@@ -174,16 +175,6 @@ class FieldModel:
 
 
 # --- helpers ---------------------------------------------------------------------------------------------------
-def _plain(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
 
 
 def _plane_coeffs(area: dict) -> tuple[float, float, float]:

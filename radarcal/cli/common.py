@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import json
 import sys
-from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 import typer
 from rich.console import Console
+
+from radarcal.plain import to_plain
 
 __all__ = ["err_console", "emit", "progress", "BundleOpt", "JsonOpt", "to_jsonable", "command_line"]
 
@@ -25,19 +25,8 @@ JsonOpt = typer.Option(False, "--json", help="Machine-readable summary on stdout
 
 
 def to_jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return to_jsonable(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return None
-    return obj
+    """Plain JSON-safe Python (NaN/inf become null)."""
+    return to_plain(obj, json_safe=True)
 
 
 def emit(summary: dict, as_json: bool, human: Callable[[dict], None]) -> None:
