@@ -86,12 +86,11 @@ def _available_parallelism() -> float:
 
 
 def _rendered(n_views: int, seed: int) -> list[str]:
+    from radarcal.board import BoardSpec, object_points
     from radarcal.camera import Camera
     from radarcal.intrinsics.collect import detect_files, expand_sources
-    from radarcal.intrinsics.detect import BoardSpec as DetSpec
-    from radarcal.intrinsics.detect import object_points
     from radarcal.intrinsics.pipeline import run_intrinsics
-    from radarcal.synth import BoardSpec, default_camera, load_board_truth, write_board_set
+    from radarcal.synth import default_camera, load_board_truth, write_board_set
 
     lines = []
     cam = default_camera("pinhole5", (1280, 1024))
@@ -103,7 +102,7 @@ def _rendered(n_views: int, seed: int) -> list[str]:
         truth = load_board_truth(tmp)
         files, _v = expand_sources([tmp])
         names = [str(f) for f in files]
-        board = DetSpec("chessboard", 9, 6, 0.025)
+        board = spec  # the same board model renders and detects
         # ours, one worker (time per image on one core), then two workers (speed-up)
         t0 = time.time()
         views1 = detect_files(files, board, workers=1)
@@ -168,7 +167,8 @@ def _rendered(n_views: int, seed: int) -> list[str]:
 
 
 def _opencv_left() -> list[str]:
-    from radarcal.intrinsics.detect import BoardSpec, detect_board, object_points
+    from radarcal.board import BoardSpec, object_points
+    from radarcal.intrinsics.detect import detect_board
     from radarcal.intrinsics.solve import calibrate
 
     d = Path(__file__).resolve().parents[1].parent / "shared" / "datasets" / "opencv_stereo_chessboard"
@@ -195,7 +195,7 @@ def _opencv_left() -> list[str]:
 def _bad_view_sim(seeds=range(100, 105)) -> list[str]:
     import cv2
 
-    from radarcal.intrinsics.detect import BoardSpec
+    from radarcal.board import BoardSpec
     from radarcal.intrinsics.simulate import radar_station_camera, simulate_views
     from radarcal.intrinsics.solve import calibrate
 

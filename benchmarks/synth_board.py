@@ -74,7 +74,8 @@ class _OpenCVWarp:
 def main(argv: list[str]) -> int:
     import cv2
 
-    from radarcal.synth.board import BoardRenderer, BoardSpec, RenderSettings, board_truth_pixels, default_camera, plan_views
+    from radarcal.board import BoardSpec
+    from radarcal.synth.board import BoardRenderer, RenderSettings, board_truth_pixels, default_camera, plan_views
 
     size = (1280, 1024)
     spec = BoardSpec("chessboard", 9, 6, 0.025)

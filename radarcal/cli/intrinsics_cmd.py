@@ -10,11 +10,12 @@ from pathlib import Path
 import numpy as np
 import typer
 
+from radarcal.board import BoardSpec, object_points
 from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
 from radarcal.cli.common import BundleOpt, JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
 from radarcal.intrinsics.collect import ViewInput, decide_layout, detect_files, diagnose, expand_sources, sample_video
-from radarcal.intrinsics.detect import BoardSpec, normalise_order, object_points
+from radarcal.intrinsics.detect import normalise_order
 from radarcal.intrinsics.pipeline import IntrinsicsResult, NotEnoughViews, run_intrinsics
 from radarcal.intrinsics.select import DESCRIPTOR_NAMES, TARGET_RANGES, view_descriptor
 from radarcal.intrinsics.solve import MODELS, SolveError
@@ -233,12 +234,13 @@ def intrinsics(
     as_json: bool = JsonOpt,
 ) -> None:
     """Calibrate camera intrinsics from chessboard / ChArUco views (and T_cam1_cam0 with --right)."""
-    spec = BoardSpec(board, cols, rows, square, marker, dictionary, {"auto": None, "new": False, "legacy": True}.get(layout, "bad"))  # type: ignore[arg-type]
-    if spec.legacy == "bad":
+    layouts = {"auto": None, "new": False, "legacy": True}
+    if layout not in layouts:
         raise InputError("--layout", f"expected auto, new or legacy, got {layout!r}")
-    problem = spec.problem()
-    if problem:
-        raise InputError("--board", problem)
+    try:
+        spec = BoardSpec(board, cols, rows, square, marker, dictionary, layouts[layout])
+    except ValueError as e:
+        raise InputError("--board", str(e)) from None
     if model != "auto" and model not in MODELS:
         raise InputError("--model", f"expected auto or one of {', '.join(MODELS)}, got {model!r}")
     if stereo and not right:

@@ -55,7 +55,8 @@ def synth_board(
     as_json: bool = JsonOpt,
 ) -> None:
     """Render a calibration-target image set with known camera, poses and corner pixels."""
-    from radarcal.synth.board import BoardSpec, RenderSettings, default_camera, default_stereo_camera, write_board_set
+    from radarcal.board import BoardSpec
+    from radarcal.synth.board import RenderSettings, default_camera, default_stereo_camera, write_board_set
 
     if board not in ("chessboard", "charuco"):
         raise InputError("--board", f"expected chessboard or charuco, got {board!r}")
@@ -83,8 +84,8 @@ def synth_board(
     if board == "charuco" and marker is None:
         marker = 0.75 * square
     try:
-        spec = BoardSpec(board, cols, rows, square, marker if board == "charuco" else None,
-                         dictionary if board == "charuco" else None, legacy if board == "charuco" else False)
+        charuco = board == "charuco"
+        spec = BoardSpec(board, cols, rows, square, marker if charuco else None, dictionary, legacy if charuco else None)
     except ValueError as e:
         raise InputError("--board", str(e)) from None
     settings = RenderSettings(supersample=supersample, blur_sigma=blur, noise_sigma=noise, vignetting=vignetting, fisheye_fov_deg=fov)

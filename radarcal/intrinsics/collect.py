@@ -19,9 +19,10 @@ from typing import Callable, Iterable
 import cv2
 import numpy as np
 
+from radarcal.board import BoardSpec
 from radarcal.errors import InputError
 from radarcal.io.images import read_image
-from radarcal.intrinsics.detect import BoardSpec, Detection, choose_charuco_layout, detect_board, diagnose_board_size
+from radarcal.intrinsics.detect import Detection, choose_charuco_layout, detect_board, diagnose_board_size
 from radarcal.intrinsics.select import novel_mask, view_descriptor
 
 __all__ = ["ViewInput", "IMAGE_EXTS", "VIDEO_EXTS", "expand_sources", "detect_files", "sample_video", "decide_layout", "diagnose"]

@@ -8,8 +8,9 @@ worse still. Here the half-window of each corner is ``ceil(0.3 x its smallest ne
 (clamped to [2, 15] px) with the image-wide smallest gap (per-corner windows measured worse: 0.208 vs 0.183 px RMS on OpenCV's right set). ``findChessboardCornersSB`` is the fallback when
 the classic detector fails (it is more robust to blur and clutter; less accurate on sharp images).
 
-Board conventions: chessboard ``cols x rows`` are INNER corners, object points row-major ``(c*s, r*s, 0)``.
-ChArUco ``cols x rows`` are SQUARES, ids as OpenCV's ``CharucoBoard.getChessboardCorners()``; the legacy (pre-4.6)
+Board conventions (:mod:`radarcal.board`): chessboard ``cols x rows`` are INNER corners, object points row-major
+``(c*s, r*s, 0)``. ChArUco ``cols x rows`` are SQUARES, ids and object points as OpenCV's
+``CharucoBoard.getChessboardCorners()`` (origin at the board corner); the legacy (pre-4.6)
 layout is chosen per set by :func:`choose_charuco_layout` (OpenCV silently finds 0 corners with the wrong one).
 """
 
@@ -19,6 +20,8 @@ from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
+
+from radarcal.board import BoardSpec, object_points  # the one board model; re-exported under the old path
 
 __all__ = [
     "BoardSpec",
@@ -36,52 +39,6 @@ __all__ = [
     "normalise_order",
 ]
 
-_ARUCO_DICTS = {name: getattr(cv2.aruco, name) for name in dir(cv2.aruco) if name.startswith("DICT_")}
-
-
-@dataclass(frozen=True)
-class BoardSpec:
-    """A calibration target.
-
-    kind: ``"chessboard"`` (cols/rows = inner corners) or ``"charuco"`` (cols/rows = squares).
-    square/marker: metres. legacy: ChArUco layout, ``None`` = decide automatically per set.
-    """
-
-    kind: str
-    cols: int
-    rows: int
-    square: float
-    marker: float = 0.0
-    dictionary: str = "DICT_4X4_1000"
-    legacy: bool | None = None
-
-    def problem(self) -> str | None:
-        if self.kind not in ("chessboard", "charuco"):
-            return f"board: expected chessboard or charuco, got {self.kind!r}"
-        if self.cols < 2 or self.rows < 2:
-            return f"board: cols/rows must be >= 2, got {self.cols}x{self.rows}"
-        if not self.square > 0:
-            return f"board: square size must be > 0, got {self.square}"
-        if self.kind == "charuco":
-            if not 0 < self.marker < self.square:
-                return f"board: ChArUco marker size must be in (0, square={self.square}), got {self.marker}"
-            if self.dictionary not in _ARUCO_DICTS:
-                return f"board: unknown ArUco dictionary {self.dictionary!r}"
-        return None
-
-    @property
-    def n_corners(self) -> int:
-        if self.kind == "chessboard":
-            return self.cols * self.rows
-        return (self.cols - 1) * (self.rows - 1)
-
-    @property
-    def grid_shape(self) -> tuple[int, int]:
-        """(corner rows, corner cols) of the inner-corner grid, row-major ids."""
-        if self.kind == "chessboard":
-            return self.rows, self.cols
-        return self.rows - 1, self.cols - 1
-
 
 @dataclass
 class Detection:
@@ -97,14 +54,6 @@ class Detection:
     min_gap_px: float = float("nan")
     legacy: bool | None = None  # ChArUco layout used
     n_markers: int = 0  # ChArUco markers seen (diagnosis)
-
-
-def object_points(board: BoardSpec) -> np.ndarray:
-    """Board-frame corner coordinates (N,3) in metres, indexed by corner id (row-major)."""
-    nr, nc = board.grid_shape
-    r, c = np.mgrid[0:nr, 0:nc]
-    s = board.square
-    return np.stack([c.ravel() * s, r.ravel() * s, np.zeros(nr * nc)], axis=1).astype(float)
 
 
 # --- geometry helpers ------------------------------------------------------------------------------------------
@@ -283,7 +232,7 @@ def _charuco_detector(board: BoardSpec, legacy: bool):
     12x faster (0.04 vs 0.49 s per image measured on PhotonVision's sets) and finds the same corners."""
     key = (board.cols, board.rows, board.square, board.marker, board.dictionary, bool(legacy))
     if key not in _DETECTORS:
-        full = cv2.aruco.getPredefinedDictionary(_ARUCO_DICTS[board.dictionary])
+        full = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, board.dictionary))
         n = (board.cols * board.rows) // 2 + 1
         small = cv2.aruco.Dictionary(full.bytesList[: min(n, len(full.bytesList))].copy(), full.markerSize, full.maxCorrectionBits)
         cb = cv2.aruco.CharucoBoard((board.cols, board.rows), board.square, board.marker, small)

@@ -10,7 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from radarcal.camera import Camera
-from radarcal.intrinsics.detect import BoardSpec, object_points
+from radarcal.board import BoardSpec, object_points
 
 __all__ = ["SimulatedViews", "simulate_views", "radar_station_camera"]
 

@@ -6,9 +6,9 @@ and its reader :func:`load_board_truth`). Rendering is by *inverse mapping*: eve
 averaged over sub-pixel samples. Pixel centres are at integer coordinates, so pixel ``(u, v)`` covers
 ``[u-0.5, u+0.5] x [v-0.5, v+0.5]`` and its sub-samples are spread symmetrically over that square.
 
-Board frame (OpenCV's object-point convention): x along the columns, y along the rows, z into the board.
-Chessboard: origin at the first inner corner, ``cols x rows`` inner corners. ChArUco: origin at the board corner,
-``cols x rows`` squares, corner ``id`` at ``((id % (cols-1) + 1) * square, (id // (cols-1) + 1) * square, 0)``.
+Board model and frame: :class:`radarcal.board.BoardSpec` and :func:`radarcal.board.object_points` (OpenCV's
+object-point convention; re-exported here, ``board_object_points`` is the same function). A spec with
+``legacy=None`` is rendered with the new (OpenCV >= 4.6) ChArUco layout.
 
 Speed: the per-camera ray grid (one exact ray per pixel plus its derivatives along u and v, used for the
 sub-samples by a first-order expansion whose error is < 1e-4 px) is computed once and reused for every view; only
@@ -20,11 +20,12 @@ from __future__ import annotations
 import json
 import os
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from radarcal.board import BoardSpec, object_points
 from radarcal.camera import Camera
 from radarcal.geometry import invert_T, rotvec_to_R
 
@@ -50,144 +51,13 @@ __all__ = [
 ]
 
 TRUTH_FORMAT = "radarcal-synth-board/1"
-_KINDS = ("chessboard", "charuco")
 _TEXELS_PER_SQUARE = 120  # ChArUco texture resolution; square edges fall exactly on texel boundaries
 
 
 # ------------------------------------------------------------------------------------------------------------------
-# board geometry
+# board geometry: radarcal.board (BoardSpec, object_points) is the one definition; the old names are re-exported
 # ------------------------------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class BoardSpec:
-    """A planar calibration target.
-
-    kind: ``"chessboard"`` (``cols x rows`` = INNER corners) or ``"charuco"`` (``cols x rows`` = squares).
-    square / marker in metres; ``dictionary`` an OpenCV name such as ``"DICT_4X4_1000"``; ``legacy`` selects
-    OpenCV's pre-4.6 ChArUco layout (``setLegacyPattern(True)``). ``margin``: white paper beyond the outer
-    squares (metres; default one square).
-    """
-
-    kind: str = "chessboard"
-    cols: int = 9
-    rows: int = 6
-    square: float = 0.025
-    marker: float | None = None
-    dictionary: str | None = None
-    legacy: bool = False
-    margin: float | None = None
-
-    def __post_init__(self) -> None:
-        problem = self.problem()
-        if problem:
-            raise ValueError(problem)
-        if self.margin is None:  # resolve the default so that equal boards compare equal
-            object.__setattr__(self, "margin", float(self.square))
-
-    def problem(self) -> str | None:
-        if self.kind not in _KINDS:
-            return f"board: expected one of {_KINDS}, got {self.kind!r}"
-        if not (self.square > 0 and np.isfinite(self.square)):
-            return f"square: must be positive, got {self.square}"
-        if self.kind == "chessboard":
-            if self.cols < 2 or self.rows < 2:
-                return f"chessboard needs at least 2x2 inner corners, got {self.cols}x{self.rows}"
-        else:
-            if self.cols < 2 or self.rows < 2:
-                return f"charuco needs at least 2x2 squares, got {self.cols}x{self.rows}"
-            if self.marker is None or not (0 < self.marker < self.square):
-                return f"marker: must be in (0, square={self.square}), got {self.marker}"
-            if not self.dictionary or not hasattr(_aruco(), self.dictionary):
-                return f"dictionary: unknown ArUco dictionary {self.dictionary!r}"
-        if self.margin is not None and self.margin < 0:
-            return f"margin: must be >= 0, got {self.margin}"
-        return None
-
-    @property
-    def squares_x(self) -> int:
-        return self.cols + 1 if self.kind == "chessboard" else self.cols
-
-    @property
-    def squares_y(self) -> int:
-        return self.rows + 1 if self.kind == "chessboard" else self.rows
-
-    @property
-    def corners_x(self) -> int:
-        """Inner corners along x."""
-        return self.squares_x - 1
-
-    @property
-    def corners_y(self) -> int:
-        return self.squares_y - 1
-
-    @property
-    def n_corners(self) -> int:
-        return self.corners_x * self.corners_y
-
-    @property
-    def paper_margin(self) -> float:
-        return self.square if self.margin is None else float(self.margin)
-
-    @property
-    def squares_extent(self) -> tuple[float, float, float, float]:
-        """(xmin, ymin, xmax, ymax) of the squares area in the board frame."""
-        o = -self.square if self.kind == "chessboard" else 0.0
-        return (o, o, o + self.squares_x * self.square, o + self.squares_y * self.square)
-
-    @property
-    def centre(self) -> np.ndarray:
-        x0, y0, x1, y1 = self.squares_extent
-        return np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
-
-    def to_dict(self) -> dict:
-        return {
-            "type": self.kind,
-            "cols": self.cols,
-            "rows": self.rows,
-            "square": self.square,
-            "marker": self.marker,
-            "dictionary": self.dictionary,
-            "legacy": self.legacy,
-            "margin": self.paper_margin,
-            "squares_x": self.squares_x,
-            "squares_y": self.squares_y,
-            "n_corners": self.n_corners,
-        }
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "BoardSpec":
-        return cls(kind=d["type"], cols=int(d["cols"]), rows=int(d["rows"]), square=float(d["square"]),
-                   marker=d.get("marker"), dictionary=d.get("dictionary"), legacy=bool(d.get("legacy", False)),
-                   margin=d.get("margin"))
-
-    def cv_board(self):
-        """The ``cv2.aruco.CharucoBoard`` of a ChArUco spec (legacy flag applied)."""
-        if self.kind != "charuco":
-            raise ValueError("cv_board: only for ChArUco boards")
-        aruco = _aruco()
-        dictionary = aruco.getPredefinedDictionary(getattr(aruco, self.dictionary))
-        board = aruco.CharucoBoard((self.cols, self.rows), self.square, self.marker, dictionary)
-        board.setLegacyPattern(bool(self.legacy))
-        return board
-
-
-def _aruco():
-    import cv2
-
-    return cv2.aruco
-
-
-def board_object_points(spec: BoardSpec) -> np.ndarray:
-    """(N,3) inner-corner coordinates in the board frame, in the order OpenCV's detectors return them.
-
-    Chessboard: row-major (``k = row * cols + col``), as ``findChessboardCorners`` returns an unrotated board.
-    ChArUco: by charuco id (identical to ``CharucoBoard.getChessboardCorners()``).
-    """
-    c, r = np.meshgrid(np.arange(spec.corners_x), np.arange(spec.corners_y))
-    offset = 0.0 if spec.kind == "chessboard" else spec.square
-    pts = np.zeros((spec.n_corners, 3))
-    pts[:, 0] = c.ravel() * spec.square + offset
-    pts[:, 1] = r.ravel() * spec.square + offset
-    return pts
+board_object_points = object_points  # the same function, under the name this module has always exported
 
 
 def _board_texture(spec: BoardSpec) -> np.ndarray | None:
@@ -809,6 +679,8 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     """
     import cv2
 
+    if spec.legacy is None:  # "decide automatically" means nothing to a renderer: it draws the new layout
+        spec = replace(spec, legacy=False)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if (out / "truth.json").is_file():  # a previous set lives here: drop its images so no stale file survives
