@@ -8,7 +8,7 @@ import sys
 import click
 import typer
 
-from radarcal.cli import bundle_cmd
+from radarcal.cli import bundle_cmd, synth_lidar_camera_cmd
 from radarcal.errors import InputError
 
 app = typer.Typer(name="radarcal", help="Calibration for camera / LiDAR / mmWave-radar rigs.", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -25,6 +25,7 @@ app.add_typer(bundle_cmd.app, name="bundle")
 # `radarcal synth <scene>`: ground-truth scene generators (one module per scene registers its command here)
 synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
 app.add_typer(synth_app, name="synth")
+synth_app.command("lidar-camera")(synth_lidar_camera_cmd.synth_lidar_camera)
 
 
 def main(argv: list[str] | None = None) -> int:
