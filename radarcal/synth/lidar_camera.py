@@ -181,14 +181,15 @@ def _build_scene(rng: np.random.Generator, p: LidarCameraSceneParams) -> tuple[l
         y = side * rng.uniform(9, 12)
         add("wall", *_box((back / 2 + 2, y, g + 2.5), (back - 2, 0.3, 5), yaw=np.radians(rng.uniform(-4, 4))), 0.55,
             stripes={"axis": np.array([1.0, 0, 0]), "period": rng.uniform(1.5, 3.0), "duty": 0.5, "contrast": 0.5})
+    near = 9.5 if p.boards else 6.0  # keep the foreground free for the boards
     # boxes on the ground
     for _ in range(7):
-        x = rng.uniform(6, 20)
+        x = rng.uniform(near, 20)
         y = rng.uniform(-0.55, 0.55) * x
         sx, sy, sz = rng.uniform(0.8, 2.0), rng.uniform(0.8, 2.5), rng.uniform(0.6, 2.2)
         add("box", *_box((x, y, g + sz / 2), (sx, sy, sz), yaw=rng.uniform(-0.8, 0.8)), rng.uniform(0.25, 0.85))
     # steps: stacked slabs
-    x0, y0 = rng.uniform(9, 15), rng.uniform(-4, 4)
+    x0, y0 = rng.uniform(max(9, near + 1), 15), rng.uniform(-4, 4)
     yaw = rng.uniform(-0.5, 0.5)
     for k in range(4):
         h = 0.35 * (k + 1)
@@ -196,22 +197,26 @@ def _build_scene(rng: np.random.Generator, p: LidarCameraSceneParams) -> tuple[l
         add("step", *_box((x0 + off[0], y0 + off[1], g + h / 2), (0.6, 3.0, h), yaw=yaw), 0.5 + 0.08 * k)
     # pillars (polygonal) and square columns
     for _ in range(3):
-        x = rng.uniform(8, 22)
+        x = rng.uniform(max(8, near), 22)
         y = rng.uniform(-0.6, 0.6) * x
         h = rng.uniform(3, 6)
         add("pillar", *_prism((x, y, g + h / 2), rng.uniform(0.2, 0.4), h), rng.uniform(0.3, 0.8))
     for _ in range(2):
-        x = rng.uniform(8, 22)
+        x = rng.uniform(max(8, near), 22)
         y = rng.uniform(-0.6, 0.6) * x
         h = rng.uniform(3, 6)
         add("pillar", *_box((x, y, g + h / 2), (0.5, 0.5, h), yaw=rng.uniform(0, 1.5)), rng.uniform(0.3, 0.8))
     # calibration boards on thin stands, facing the sensors
     boards = []
     bw, bh = p.board_size_m
+    # boards spread in azimuth, alternately near/low and far/high so that they do not hide each other
+    azimuths = np.linspace(-28, 28, p.boards) if p.boards > 1 else np.zeros(p.boards)
     for k in range(p.boards):
-        x = rng.uniform(4.0, 8.0)
-        y = rng.uniform(-0.35, 0.35) * x
-        zc = g + rng.uniform(1.2, 1.8)
+        far = k % 2 == 1
+        r = rng.uniform(6.5, 8.0) if far else rng.uniform(4.0, 5.5)
+        az = np.radians(azimuths[k] + rng.uniform(-1.5, 1.5))
+        x, y = r * np.cos(az), r * np.sin(az)
+        zc = g + (rng.uniform(2.0, 2.4) if far else rng.uniform(0.9, 1.3))
         yaw = np.arctan2(-y, -x) + rng.uniform(-0.4, 0.4)  # board normal roughly towards the origin
         tilt = rng.uniform(-0.3, 0.3)
         roll = rng.uniform(-0.5, 0.5)
