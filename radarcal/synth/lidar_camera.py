@@ -95,6 +95,7 @@ class LidarCameraScene:
     objects: list[dict]
     boards: list[dict] = field(default_factory=list)  # {"id", "corners_lidar" (4,3), "corners_uv" (4,2), "size_m"}
     params: dict = field(default_factory=dict)
+    meshes: list = field(default_factory=list, repr=False)  # (vertices (n,3), triangles (m,3)) per object, LiDAR frame
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -181,15 +182,15 @@ def _build_scene(rng: np.random.Generator, p: LidarCameraSceneParams) -> tuple[l
         y = side * rng.uniform(9, 12)
         add("wall", *_box((back / 2 + 2, y, g + 2.5), (back - 2, 0.3, 5), yaw=np.radians(rng.uniform(-4, 4))), 0.55,
             stripes={"axis": np.array([1.0, 0, 0]), "period": rng.uniform(1.5, 3.0), "duty": 0.5, "contrast": 0.5})
-    near = 9.5 if p.boards else 6.0  # keep the foreground free for the boards
+    near = 9.5 if p.boards else 4.0  # keep the foreground free for the boards
     # boxes on the ground
-    for _ in range(7):
-        x = rng.uniform(near, 20)
+    for _ in range(8):
+        x = rng.uniform(near, 18)
         y = rng.uniform(-0.55, 0.55) * x
         sx, sy, sz = rng.uniform(0.8, 2.0), rng.uniform(0.8, 2.5), rng.uniform(0.6, 2.2)
         add("box", *_box((x, y, g + sz / 2), (sx, sy, sz), yaw=rng.uniform(-0.8, 0.8)), rng.uniform(0.25, 0.85))
     # steps: stacked slabs
-    x0, y0 = rng.uniform(max(9, near + 1), 15), rng.uniform(-4, 4)
+    x0, y0 = rng.uniform(max(6, near + 1), 12), rng.uniform(-3, 3)
     yaw = rng.uniform(-0.5, 0.5)
     for k in range(4):
         h = 0.35 * (k + 1)
@@ -385,7 +386,7 @@ def render_lidar_camera_scene(params: LidarCameraSceneParams | None = None) -> L
         board_out.append({"id": b["object"] + 1, "corners_lidar": b["corners_lidar"], "corners_uv": uvb, "visible": bool(np.all(valid & cam.in_image(uvb))), "size_m": b["size_m"]})
     T_init = geometry.perturb_T(T_cam_lidar, p.init_deg, p.init_m, rng)
     pd = {k: (v.to_dict() if isinstance(v, Camera) else v) for k, v in p.__dict__.items() if k not in ("T_cam_lidar",)}
-    return LidarCameraScene(img, id_full.astype(np.int32), points, refl.astype(np.float32), (obj + 1).astype(np.int32), cam_visible, cam, T_cam_lidar, T_init, objects, board_out, pd)
+    return LidarCameraScene(img, id_full.astype(np.int32), points, refl.astype(np.float32), (obj + 1).astype(np.int32), cam_visible, cam, T_cam_lidar, T_init, objects, board_out, pd, [(o["v"], o["f"]) for o in objs])
 
 
 def write_lidar_camera_scene(scene: LidarCameraScene, out_dir: str | Path, command: str = "") -> dict[str, Path]:
