@@ -226,9 +226,15 @@ def image_edges(image: np.ndarray, min_length: int = 40, canny: tuple[float, flo
     uv = np.stack([uu, vv], 1).astype(float)
     # sub-pixel: parabola through the gradient magnitude at -1, 0, +1 px along the gradient direction
     MAG = np.hypot(GX, GY)
-    mx = np.stack([uu - nx, uu + 0 * nx, uu + nx]).astype(np.float32)
-    my = np.stack([vv - ny, vv + 0 * ny, vv + ny]).astype(np.float32)
-    samp = cv2.remap(MAG, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    def bilinear(img, x, y):
+        h, w = img.shape
+        x = np.clip(x, 0, w - 1.001)
+        y = np.clip(y, 0, h - 1.001)
+        x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+        fx, fy = x - x0, y - y0
+        return (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x0 + 1] * fx * (1 - fy) + img[y0 + 1, x0] * (1 - fx) * fy + img[y0 + 1, x0 + 1] * fx * fy)
+
+    samp = [bilinear(MAG, uu + sg * nx, vv + sg * ny) for sg in (-1.0, 0.0, 1.0)]
     m0, m1, m2 = samp[0], samp[1], samp[2]
     den = m0 - 2 * m1 + m2
     off = np.where(den < -1e-6, 0.5 * (m0 - m2) / np.where(den < -1e-6, den, -1.0), 0.0)
