@@ -146,7 +146,7 @@ def real_mlcc(pairs=(0, 2, 4, 8)) -> None:
 def real_opencalib() -> None:
     from radarcal import geometry
     from radarcal.camera import Camera
-    from radarcal.extrinsics.edges import edge_score, image_edges, lidar_edges
+    from radarcal.extrinsics.edges import crop_to_camera, edge_score, image_edges, lidar_depth_edges
     from radarcal.extrinsics.refine import EdgeScene, RefineOptions, refine_edges
     from radarcal.io import read_cloud, read_image
 
@@ -154,15 +154,17 @@ def real_opencalib() -> None:
     if not D.is_dir():
         print("\n-- opencalib: data set absent, skipped --")
         return
-    print("\n-- opencalib_road_64beam (spinning 64-beam): from the shipped reference and from it perturbed 1 deg / 5 cm --")
+    print("\n-- opencalib_road_64beam (spinning 64-beam, depth-discontinuity edges, Canny image edges, cloud cropped to the view):"
+          " from the shipped reference and from it perturbed 1 deg / 5 cm --")
     for name, img_name, cloud_name in (("auto", "calib.png", "calib.pcd"), ("manual", "0.png", "0.pcd")):
         K, dist, T_ref = _opencalib_camera(D / name)
         img = read_image(D / name / img_name)
         cam = Camera((img.shape[1], img.shape[0]), K, dist)
         cloud = read_cloud(D / name / cloud_name)
         t0 = time.perf_counter()
-        le = lidar_edges(cloud.points, voxel=1.0, min_points=8, max_range=60, crease_radius=0.15, support=0.25, max_line_sigma=0.03)
-        sc = EdgeScene(cam, le, image_edges(img))
+        pts = cloud.points[crop_to_camera(cloud.points, cam, T_ref)]
+        le = lidar_depth_edges(pts, max_range=60)
+        sc = EdgeScene(cam, le, image_edges(img, method="canny"))
         s_ref = edge_score(cam, T_ref, le, sc.image)[0]
         for label, T0 in (("ref", T_ref), ("ref+1deg/5cm", geometry.perturb_T(T_ref, 1.0, 0.05, np.random.default_rng(1)))):
             r = refine_edges([sc], T0, RefineOptions(translation_prior_m=0.3, coarse_search_deg=2.0, coarse_step_deg=0.5))

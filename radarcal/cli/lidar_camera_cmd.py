@@ -40,6 +40,8 @@ def lidar_camera(
     board_uv: Path = typer.Option(None, "--board-uv", help="Clicked image corners of the boards: CSV u,v[,view], 4 rows per board, any order."),
     board_squares: str = typer.Option(None, "--board-squares", help="NX,NY squares of a chessboard painted edge to edge on the board: find its image corners automatically."),
     refine: bool = typer.Option(False, "--refine", help="Targetless edge-alignment refinement (multi-scene when several pairs)."),
+    lidar_edges_kind: str = typer.Option("planes", "--lidar-edges", help="planes (plane intersections; dense Livox clouds) or depth (range jumps along scan lines; single spinning sweeps)."),
+    image_edges_kind: str = typer.Option("lsd", "--image-edges", help="lsd (straight segments, less clutter) or canny."),
     voxel: float = typer.Option(0.5, "--voxel", help="Voxel size (m) for LiDAR plane fitting (0.3-0.5 dense Livox, 1.0 sparse spinning)."),
     search_deg: float = typer.Option(6.0, "--search-deg", help="Half-width of the coarse rotation search (deg; 0 disables)."),
     max_range: float = typer.Option(60.0, "--max-range", help="Ignore LiDAR points farther than this (m) for edges."),
@@ -134,16 +136,24 @@ def lidar_camera(
     # ---- targetless refinement
     converged = True
     if refine:
-        from radarcal.extrinsics.edges import image_edges, lidar_edges
+        from radarcal.extrinsics.edges import crop_to_camera, image_edges, lidar_depth_edges, lidar_edges
         from radarcal.extrinsics.refine import PARAM_NAMES, EdgeScene, RefineOptions, refine_edges
 
+        if lidar_edges_kind not in ("planes", "depth"):
+            raise InputError("--lidar-edges", f"expected 'planes' or 'depth', got {lidar_edges_kind!r}")
+        if image_edges_kind not in ("lsd", "canny"):
+            raise InputError("--image-edges", f"expected 'lsd' or 'canny', got {image_edges_kind!r}")
         scenes = []
         with err_console.status("extracting edges"):
             for p, im, c in zip(clouds, imgs, clds):
-                le = lidar_edges(c.points, voxel=voxel, max_range=max_range)
+                pts = c.points[crop_to_camera(c.points, cam, T, margin=0.3)]  # a spinning sweep is mostly out of view
+                if lidar_edges_kind == "planes":
+                    le = lidar_edges(pts, voxel=voxel, max_range=max_range)
+                else:
+                    le = lidar_depth_edges(pts, max_range=max_range)
                 if len(le.points) < 30:
                     summary["warnings"].append(f"{p}: only {len(le.points)} LiDAR edge samples (try --voxel {voxel * 2:g})")
-                scenes.append(EdgeScene(cam, le, image_edges(im)))
+                scenes.append(EdgeScene(cam, le, image_edges(im, method=image_edges_kind)))
         with err_console.status("refining"):
             res = refine_edges(scenes, T, RefineOptions(coarse_search_deg=search_deg, translation_prior_m=trans_prior, fix_translation=rotation_only))
         converged = res.converged

@@ -43,8 +43,8 @@ class RefineOptions:
     max_angle_deg: float = 20.0
     loss_scale_px: float = 1.0  # Cauchy scale at the finest radius (coarser stages use radius / 4)
     max_rematch: int = 15
-    tol_rot_rad: float = 2e-6
-    tol_trans_m: float = 2e-5
+    tol_rot_rad: float = 2e-5
+    tol_trans_m: float = 2e-4
     coarse_search_deg: float = 6.0  # half-width of the rotation grid (0 disables)
     coarse_step_deg: float = 1.0
     fix_translation: bool = False
@@ -88,16 +88,18 @@ def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_
     if ie.tree is None or len(le.points) == 0:
         return np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
     uv, valid, z = cam.project_from(T, le.points)
-    uv2, valid2, _ = cam.project_from(T, le.points + 0.05 * le.dirs)
-    ok = valid & valid2 & cam.in_image(uv, 2.0) & (z > 0.3)
+    has_dir = np.all(np.isfinite(le.dirs), axis=1)
+    uv2, valid2, _ = cam.project_from(T, le.points + 0.05 * np.where(has_dir[:, None], le.dirs, 0.0))
+    ok = valid & (valid2 | ~has_dir) & cam.in_image(uv, 2.0) & (z > 0.3)
     idx = np.flatnonzero(ok)
     if len(idx) == 0:
         return np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
     d2 = uv2[idx] - uv[idx]
     d2 /= np.maximum(np.linalg.norm(d2, axis=1, keepdims=True), 1e-12)
+    hd = has_dir[idx]
     dist, nn = ie.tree.query(uv[idx], k=k, distance_upper_bound=radius)
     full = np.all(np.isfinite(dist), axis=1)
-    idx, d2, nn, uvp = idx[full], d2[full], nn[full], uv[idx][full]
+    idx, d2, nn, uvp, hd = idx[full], d2[full], nn[full], uv[idx][full], hd[full]
     pts = ie.uv[nn]  # (n,k,2)
     m = pts.mean(1)
     c = pts - m[:, None, :]
@@ -109,7 +111,7 @@ def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_
     cos_l = np.abs(np.sum(line_dir * d2, 1))
     cos_g = np.abs(np.einsum("nki,ni->nk", ie.dirs[nn], d2)).mean(1)
     cmax = np.cos(np.radians(max_angle_deg))
-    keep = linear & (cos_l > cmax) & (cos_g > cmax)
+    keep = linear & (((cos_l > cmax) & (cos_g > cmax)) | ~hd)
     normal = np.stack([-line_dir[:, 1], line_dir[:, 0]], 1)
     r = np.sum((uvp - m) * normal, 1)
     keep &= np.abs(r) < radius
