@@ -52,7 +52,12 @@ class RefineOptions:
     translation_prior_m: float = 0.0  # sigma of a prior pulling the translation towards the initial guess (0: none)
     rotation_only_stages: int = 2  # the first (coarsest) radii solve rotation only
     translation_starts_m: float = 0.0  # extra starts with the camera centre moved +-this along each axis (0: none)
-    n_starts: int = 3  # distinct coarse-search minima refined in full (plus the initial guess itself)
+    n_starts: int = 3
+    stability_checks: int = 4  # restarts from the result (0: none)
+    stability_deg: float = 0.3
+    stability_m: float = 0.03
+    stability_tol_deg: float = 0.05
+    stability_tol_m: float = 0.01  # distinct coarse-search minima refined in full (plus the initial guess itself)
 
 
 @dataclass
@@ -261,6 +266,24 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
         if best is None or fine < best[0]:
             best = (fine, T, conv)
     _, T, converged_stage = best
+    # stability check: restarts from the result moved by 0.3 deg / 3 cm must come back to it; a result that the
+    # restarts leave is reported as not converged
+    stable = True
+    if o.stability_checks > 0:
+        rng = np.random.default_rng(12345)
+        fine_opts = RefineOptions(**{**o.__dict__, "radii_px": o.radii_px[-2:], "rotation_only_stages": 0})
+        for rnd in range(2):
+            improved = False
+            for k in range(o.stability_checks):
+                Tk = geometry.perturb_T(T, o.stability_deg, o.stability_m, rng)
+                Tk2, conv_k, _ = _run_stages(scenes, Tk, fine_opts, t_prior=T0[:3, 3])
+                fk = _score_all(scenes, Tk2, cap=o.radii_px[-1])
+                dd, dm = geometry.pose_error(Tk2, T)
+                history.append({"stage": "stability", "round": rnd, "check": k, "score_px": fk, "back_deg": dd, "back_m": dm})
+                if dd > o.stability_tol_deg or dm > o.stability_tol_m:
+                    stable = False
+            if not improved:
+                break
     # final matching, statistics
     matches = [match_edges(sc, T, o.radii_px[-1], o.k_neighbours, o.max_angle_deg) for sc in scenes]
     n_match = sum(len(m[0]) for m in matches)
@@ -287,8 +310,10 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     score_after = _score_all(scenes, T)
     # convergence verdict
     moved_deg, moved_m = geometry.pose_error(T, T0)
-    ok = converged_stage and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
-    if not converged_stage:
+    ok = converged_stage and stable and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
+    if converged_stage and not stable:
+        msg = "did not converge: restarts from the result (0.3 deg / 3 cm away) settle elsewhere - the minimum is not well defined (more or closer structure, another scene, or a better initial guess)"
+    elif not converged_stage:
         msg = "did not converge: the update was still moving at the finest radius (increase --max-iter or improve the initial guess)"
     elif n_match < o.min_matches:
         msg = f"did not converge: only {n_match} edge matches at the finest radius (< {o.min_matches}); the initial guess is probably too far off or the scene has too few plane-plane edges"
