@@ -49,6 +49,7 @@ class RefineOptions:
     coarse_step_deg: float = 1.0
     fix_translation: bool = False
     min_matches: int = 60
+    min_match_fraction: float = 0.35  # matched share of the LiDAR edge samples that project into the image
     translation_prior_m: float = 0.0  # sigma of a prior pulling the translation towards the initial guess (0: none)
     rotation_only_stages: int = 2  # the first (coarsest) radii solve rotation only
     translation_starts_m: float = 0.0  # extra starts with the camera centre moved +-this along each axis (0: none)
@@ -56,8 +57,8 @@ class RefineOptions:
     stability_checks: int = 4  # restarts from the result (0: none)
     stability_deg: float = 0.3
     stability_m: float = 0.03
-    stability_tol_deg: float = 0.05
-    stability_tol_m: float = 0.01  # distinct coarse-search minima refined in full (plus the initial guess itself)
+    stability_tol_deg: float = 0.1
+    stability_tol_m: float = 0.02  # distinct coarse-search minima refined in full (plus the initial guess itself)
 
 
 @dataclass
@@ -271,7 +272,7 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     stable = True
     if o.stability_checks > 0:
         rng = np.random.default_rng(12345)
-        fine_opts = RefineOptions(**{**o.__dict__, "radii_px": o.radii_px[-2:], "rotation_only_stages": 0})
+        fine_opts = RefineOptions(**{**o.__dict__, "radii_px": o.radii_px[-3:], "rotation_only_stages": 0})
         for rnd in range(2):
             improved = False
             for k in range(o.stability_checks):
@@ -305,13 +306,21 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
             sigma = np.sqrt(np.abs(np.diag(cov)))
         except np.linalg.LinAlgError:
             pass
+    n_in_view = 0
+    for sc in scenes:
+        uv_, valid_, _ = sc.camera.project_from(T, sc.lidar.points)
+        n_in_view += int((valid_ & sc.camera.in_image(uv_, 2.0)).sum())
+    match_fraction = n_match / max(n_in_view, 1)
     obs = _observability(scenes, matches, T, JtJ, n_match)
+    obs["match_fraction"] = match_fraction
     warnings += obs["warnings"]
     score_after = _score_all(scenes, T)
     # convergence verdict
     moved_deg, moved_m = geometry.pose_error(T, T0)
-    ok = converged_stage and stable and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
-    if converged_stage and not stable:
+    ok = converged_stage and stable and match_fraction >= o.min_match_fraction and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
+    if match_fraction < o.min_match_fraction:
+        msg = f"did not converge: only {100 * match_fraction:.0f} % of the LiDAR edge samples in view found an image edge (< {100 * o.min_match_fraction:.0f} %) - probably a wrong minimum"
+    elif converged_stage and not stable:
         msg = "did not converge: restarts from the result (0.3 deg / 3 cm away) settle elsewhere - the minimum is not well defined (more or closer structure, another scene, or a better initial guess)"
     elif not converged_stage:
         msg = "did not converge: the update was still moving at the finest radius (increase --max-iter or improve the initial guess)"
