@@ -323,7 +323,7 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     elif converged_stage and not stable:
         msg = "did not converge: restarts from the result (0.3 deg / 3 cm away) settle elsewhere - the minimum is not well defined (more or closer structure, another scene, or a better initial guess)"
     elif not converged_stage:
-        msg = "did not converge: the update was still moving at the finest radius (increase --max-iter or improve the initial guess)"
+        msg = f"did not converge: the update was still moving at the finest radius after {o.max_rematch} re-matchings (improve the initial guess or add scenes)"
     elif n_match < o.min_matches:
         msg = f"did not converge: only {n_match} edge matches at the finest radius (< {o.min_matches}); the initial guess is probably too far off or the scene has too few plane-plane edges"
     elif not (np.isfinite(rms) and rms < 2.5 * o.loss_scale_px):
