@@ -55,8 +55,9 @@ class RefineOptions:
     translation_starts_m: float = 0.0  # extra starts with the camera centre moved +-this along each axis (0: none)
     n_starts: int = 3
     stability_checks: int = 4  # restarts from the result (0: none)
-    stability_deg: float = 0.3
-    stability_m: float = 0.03
+    stability_deg: float = 1.0
+    stability_m: float = 0.1
+    stability_full: bool = True  # restarts run the whole coarse-to-fine schedule (for larger stability_deg/m)
     stability_tol_deg: float = 0.1
     stability_tol_m: float = 0.02  # distinct coarse-search minima refined in full (plus the initial guess itself)
 
@@ -268,12 +269,12 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
         if best is None or fine < best[0]:
             best = (fine, T, conv)
     _, T, converged_stage = best
-    # stability check: restarts from the result moved by 0.3 deg / 3 cm must come back to it; a result that the
-    # restarts leave is reported as not converged
+    # stability check: restarts from the result moved by stability_deg / stability_m (whole coarse-to-fine schedule)
+    # must come back to it; a result that the restarts leave is reported as not converged
     stable = True
     if o.stability_checks > 0:
         rng = np.random.default_rng(12345)
-        fine_opts = RefineOptions(**{**o.__dict__, "radii_px": o.radii_px[-3:], "rotation_only_stages": 0})
+        fine_opts = o if o.stability_full else RefineOptions(**{**o.__dict__, "radii_px": o.radii_px[-3:], "rotation_only_stages": 0})
         for rnd in range(2):
             improved = False
             for k in range(o.stability_checks):
@@ -322,7 +323,7 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     if match_fraction < o.min_match_fraction:
         msg = f"did not converge: only {100 * match_fraction:.0f} % of the LiDAR edge samples in view found an image edge (< {100 * o.min_match_fraction:.0f} %) - probably a wrong minimum"
     elif converged_stage and not stable:
-        msg = "did not converge: restarts from the result (0.3 deg / 3 cm away) settle elsewhere - the minimum is not well defined (more or closer structure, another scene, or a better initial guess)"
+        msg = f"did not converge: restarts from the result ({o.stability_deg:g} deg / {o.stability_m * 100:g} cm away) settle elsewhere - the minimum is not well defined (more or closer structure, another scene, or a better initial guess)"
     elif not converged_stage:
         msg = f"did not converge: the update was still moving at the finest radius after {o.max_rematch} re-matchings (improve the initial guess or add scenes)"
     elif n_match < o.min_matches:
