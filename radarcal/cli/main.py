@@ -8,12 +8,19 @@ import sys
 import click
 import typer
 
-from radarcal.cli import bundle_cmd, common
-from radarcal.cli import field_pnp_cmd, synth_field_cmd
-from radarcal.cli import synth_board_cmd
-from radarcal.cli import radar_lidar_cmd, synth_radar_cmd
-from radarcal.cli import run_cmd
-from radarcal.cli import intrinsics_cmd
+from radarcal.cli import (
+    bundle_cmd,
+    common,
+    field_pnp_cmd,
+    intrinsics_cmd,
+    lidar_camera_cmd,
+    radar_lidar_cmd,
+    run_cmd,
+    synth_board_cmd,
+    synth_field_cmd,
+    synth_lidar_camera_cmd,
+    synth_radar_cmd,
+)
 from radarcal.errors import InputError
 
 app = typer.Typer(name="radarcal", help="Calibration for camera / LiDAR / mmWave-radar rigs.", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -25,19 +32,22 @@ def _root(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on 
     _state["debug"] = debug
 
 
+# Commands in pipeline order: bundle -> calibrations -> match time.
 app.add_typer(bundle_cmd.app, name="bundle")
-app.command("field-pnp")(field_pnp_cmd.field_pnp)
 app.command("intrinsics")(intrinsics_cmd.intrinsics)
-
-# `radarcal synth <scene>`: ground-truth scene generators (one module per scene registers its command here)
-synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
-app.add_typer(synth_app, name="synth")
-synth_app.command("field")(synth_field_cmd.synth_field)
-synth_app.command("board")(synth_board_cmd.synth_board)
-synth_app.command("radar")(synth_radar_cmd.synth_radar)
+app.command("lidar-camera")(lidar_camera_cmd.lidar_camera)
+app.command("field-pnp")(field_pnp_cmd.field_pnp)
 app.command("radar-lidar")(radar_lidar_cmd.radar_lidar)
 app.command("run")(run_cmd.run)
 app.command("hero-offset")(run_cmd.hero_offset)
+
+# `radarcal synth <scene>`: ground-truth scene generators
+synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
+app.add_typer(synth_app, name="synth")
+synth_app.command("board")(synth_board_cmd.synth_board)
+synth_app.command("lidar-camera")(synth_lidar_camera_cmd.synth_lidar_camera)
+synth_app.command("field")(synth_field_cmd.synth_field)
+synth_app.command("radar")(synth_radar_cmd.synth_radar)
 
 
 def _click_classes(name: str) -> tuple[type, ...]:
