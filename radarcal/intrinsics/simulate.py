@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from radarcal.camera import Camera
 from radarcal.board import BoardSpec, object_points
 
-__all__ = ["SimulatedViews", "simulate_views", "radar_station_camera"]
+__all__ = ["SimulatedViews", "simulate_views", "simulate_good_practice_views", "radar_station_camera"]
 
 
 @dataclass
@@ -60,6 +60,57 @@ def simulate_views(camera: Camera, board: BoardSpec, n_views: int, noise_px: flo
         T[:3, 3] = p_c - R @ centre
         uv, valid, z = camera.project_from(T, obj)
         if not (np.all(valid) and np.all(z > 0) and np.all(camera.in_image(uv, margin_px))):
+            continue
+        Ts.append(T)
+        objs.append(obj.copy())
+        imgs_true.append(uv)
+        imgs.append(uv + rng.normal(scale=noise_px, size=uv.shape))
+    return SimulatedViews(camera, board, Ts, objs, imgs, imgs_true)
+
+
+def simulate_good_practice_views(camera: Camera, board: BoardSpec, n_views: int, noise_px: float, rng: np.random.Generator, tilt_bands_deg: tuple[tuple[float, float], ...] = ((0.0, 10.0), (20.0, 30.0), (45.0, 55.0)), centre_span: float = 0.1, slack: tuple[float, float] = (1.0, 1.05), margin_px: float = 3.0) -> SimulatedViews:
+    """A capture plan following good practice: every view as CLOSE as the image allows (the distance is the
+    smallest at which all corners stay ``margin_px`` inside the image, times ``slack``), the board centred near the
+    image centre (within ``centre_span`` of the width/height), tilts cycling through ``tilt_bands_deg`` (near
+    fronto-parallel, moderate, strong) about a tilt direction that turns round the circle from view to view, small
+    in-plane roll. A Fisher-information greedy selection from random close/far, centred/off-centre, 0-60° poses picks
+    the same mix (see docs/intrinsics.md)."""
+    obj = object_points(board)
+    centre = obj.mean(axis=0)
+    w, h = camera.image_size
+    Ts, imgs, imgs_true, objs = [], [], [], []
+    tries = 0
+    while len(Ts) < n_views:
+        tries += 1
+        if tries > 200 * n_views:
+            raise RuntimeError("could not place the board inside the image; lower the tilts")
+        i = len(Ts)
+        lo_t, hi_t = tilt_bands_deg[i % len(tilt_bands_deg)]
+        tilt = np.deg2rad(rng.uniform(lo_t, hi_t))
+        phi = 2 * np.pi * i / n_views + rng.uniform(-0.2, 0.2)
+        R = (Rotation.from_rotvec(np.array([np.cos(phi), np.sin(phi), 0.0]) * tilt) * Rotation.from_euler("z", rng.uniform(-0.3, 0.3))).as_matrix()
+        q = np.array([w, h]) * (0.5 + rng.uniform(-centre_span, centre_span, 2))
+        ray = camera.unproject(q[None])[0]
+        ray = ray / ray[2]
+
+        def place(depth: float):
+            T = np.eye(4)
+            T[:3, :3] = R
+            T[:3, 3] = ray * depth - R @ centre
+            uv, valid, z = camera.project_from(T, obj)
+            return T, uv, bool(np.all(valid) and np.all(z > 0) and np.all(camera.in_image(uv, margin_px)))
+
+        near, far = 1e-3, 100.0 * float(np.ptp(obj[:, 0])) * camera.fx / w
+        if not place(far)[2]:
+            continue
+        for _ in range(40):  # bisection for the closest distance that keeps every corner in the image
+            mid = 0.5 * (near + far)
+            if place(mid)[2]:
+                far = mid
+            else:
+                near = mid
+        T, uv, ok = place(far * rng.uniform(*slack))
+        if not ok:
             continue
         Ts.append(T)
         objs.append(obj.copy())
