@@ -59,6 +59,9 @@ class RefineOptions:
     stability_m: float = 0.1
     stability_full: bool = True
     stability_margin: float = 0.05  # relative alignment-cost difference that tells two minima apart  # restarts run the whole coarse-to-fine schedule (for larger stability_deg/m)
+    valley_steps_m: tuple[float, ...] = (0.08,)  # restarts along the shift/rotation-coupled directions (empty: none)
+    valley_rounds: int = 5  # still improving after the last round: reported as not converged
+    valley_margin: float = 0.01  # relative cost decrease that makes a valley restart the new result
     stability_tol_deg: float = 0.1
     stability_tol_m: float = 0.02  # distinct coarse-search minima refined in full (plus the initial guess itself)
 
@@ -252,6 +255,41 @@ def _run_stages(scenes, T, o, t_prior=None):
     return T, converged_stage, history
 
 
+def _coupled_directions(scenes, T) -> list[np.ndarray]:
+    """The two parameter combinations edge alignment observes worst: a sideways (vertical) camera shift compensated
+    by the yaw (pitch) that keeps points at the median edge depth Z in place - (0, -1/Z, 0, 1, 0, 0) and
+    (1/Z, 0, 0, 0, 1, 0) per metre of translation."""
+    z = np.concatenate([(sc.lidar.points @ T[:3, :3].T + T[:3, 3])[:, 2] for sc in scenes]) if scenes else np.zeros(0)
+    z = z[z > 0.3]
+    Z = float(np.median(z)) if len(z) else 10.0
+    return [np.array([0.0, -1.0 / Z, 0.0, 1.0, 0.0, 0.0]), np.array([1.0 / Z, 0.0, 0.0, 0.0, 1.0, 0.0])]
+
+
+def _valley_restarts(scenes, T, conv, o, T0):
+    """The usual wrong minimum trades a sideways (vertical) camera shift against a yaw (pitch): restart the whole
+    schedule from the result moved along these coupled directions (translation +-``valley_steps_m`` with the
+    compensating rotation) and adopt a lower truncated alignment cost (by ``valley_margin``); repeat from the new result."""
+    hist = []
+    cost_T = alignment_cost(scenes, T, o)
+    settled = False
+    for rnd in range(o.valley_rounds):
+        best = None
+        for v in _coupled_directions(scenes, T):
+          for step in o.valley_steps_m:
+            for sg in (-1.0, 1.0):
+                Tk = _apply(sg * step * v, T)
+                Tk2, conv_k, _ = _run_stages(scenes, Tk, o, t_prior=T0[:3, 3])
+                ck = alignment_cost(scenes, Tk2, o)
+                hist.append({"stage": "valley", "round": rnd, "step_m": sg * step, "cost": ck, "cost_result": cost_T})
+                if best is None or ck < best[0]:
+                    best = (ck, Tk2, conv_k)
+        if best is None or best[0] >= cost_T * (1 - o.valley_margin):
+            settled = True
+            break
+        cost_T, T, conv = best
+    return T, conv, settled, hist
+
+
 def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOptions | None = None) -> RefineResult:
     """Refine ``T_cam_lidar`` over one or more scenes. Never raises on poor data: ``converged`` and ``message``
     say what happened."""
@@ -285,6 +323,10 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
         if best is None or fine < best[0]:
             best = (fine, T, conv)
     _, T, converged_stage = best
+    valley_settled = True
+    if o.valley_steps_m and not o.fix_translation:
+        T, converged_stage, valley_settled, vh = _valley_restarts(scenes, T, converged_stage, o, T0)
+        history += vh
     # stability check: restarts from the result moved by stability_deg / stability_m (whole coarse-to-fine schedule)
     # must come back to it; a result that the restarts leave is reported as not converged
     stable = True
@@ -343,9 +385,12 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     score_after = _score_all(scenes, T)
     # convergence verdict
     moved_deg, moved_m = geometry.pose_error(T, T0)
+    stable = stable and valley_settled
     ok = converged_stage and stable and match_fraction >= o.min_match_fraction and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
     if match_fraction < o.min_match_fraction:
         msg = f"did not converge: only {100 * match_fraction:.0f} % of the LiDAR edge samples in view found an image edge (< {100 * o.min_match_fraction:.0f} %) - probably a wrong minimum"
+    elif converged_stage and not valley_settled:
+        msg = f"did not converge: restarts along the shift/rotation-coupled directions were still finding lower costs after {o.valley_rounds} rounds"
     elif converged_stage and not stable:
         msg = f"did not converge: restarts from the result ({o.stability_deg:g} deg / {o.stability_m * 100:g} cm away) settle elsewhere - the minimum is not well defined (more or closer structure, another scene, or a better initial guess)"
     elif not converged_stage:
