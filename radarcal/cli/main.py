@@ -9,6 +9,7 @@ import click
 import typer
 
 from radarcal.cli import bundle_cmd
+from radarcal.cli import report_cmd
 from radarcal.errors import InputError
 
 app = typer.Typer(name="radarcal", help="Calibration for camera / LiDAR / mmWave-radar rigs.", no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False)
@@ -21,6 +22,7 @@ def _root(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on 
 
 
 app.add_typer(bundle_cmd.app, name="bundle")
+app.command("report")(report_cmd.report)
 
 # `radarcal synth <scene>`: ground-truth scene generators (one module per scene registers its command here)
 synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)

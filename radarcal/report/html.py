@@ -65,7 +65,7 @@ def _item_html(item: Any, dpi: int) -> str:
         return f"<p>{_html.escape(item)}</p>"
     if hasattr(item, "savefig"):
         png = figure_to_png(item, dpi=dpi)
-        w_px = int(round(item.get_figwidth() * dpi))
+        w_px = int(round(item.get_figwidth() * 96))  # display size independent of the resolution
         alt = _html.escape(caption or _figure_title(item) or "figure")
         cap = f"<figcaption>{_html.escape(caption)}</figcaption>" if caption else ""
         return f'<figure><img alt="{alt}" width="{w_px}" src="{png_data_uri(png)}">{cap}</figure>'

@@ -1,0 +1,437 @@
+"""Turn a bundle (and the session files its calibration commands saved next to it) into report sections.
+
+This is the I/O edge of :mod:`radarcal.report`: it reads session ``.npz`` files, optional images named in a session's
+metadata, and run track files, then calls the pure figure functions. Whatever a session lacks is skipped with a
+note in the report, so a report can always be made from what is there.
+
+Session keys (written with :func:`radarcal.bundle.save_session`): ``intrinsics/<camera>``,
+``lidar_camera/<camera>_<lidar>``, ``field_pnp/<camera>``. The arrays each section uses are listed in
+``docs/report.md``; several names are accepted for each (``_ALIASES``) so small differences between commands do not
+lose a figure.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from radarcal.bundle import Bundle, load_session
+from radarcal.camera import Camera
+from radarcal.errors import InputError
+from radarcal.report import field as rf
+from radarcal.report import intrinsics as ri
+from radarcal.report import lidar_camera as rl
+from radarcal.report.html import Section, Table
+
+__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args"]
+
+
+@dataclass
+class ReportContent:
+    sections: list[Section] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)  # what could not be drawn and why
+
+    @property
+    def n_figures(self) -> int:
+        return sum(1 for s in self.sections for it in s.items if hasattr(it[0] if isinstance(it, tuple) else it, "savefig"))
+
+
+# --- array lookup ----------------------------------------------------------------------------------------------------
+_ALIASES: dict[str, tuple[str, ...]] = {
+    # intrinsics
+    "uv": ("uv_observed", "uv_obs", "corners_uv", "uv", "observed_uv", "image_points"),
+    "uv_proj": ("uv_projected", "uv_proj", "projected_uv"),
+    "residual": ("residual_px", "residuals_px", "residuals", "residual"),
+    "view_index": ("view_index", "view_idx", "view_of_point", "view"),
+    "view_names": ("view_names", "views", "view_files", "files"),
+    "view_error": ("view_error_px", "view_mean_error_px", "per_view_error_px", "view_error", "view_rms_px"),
+    "view_outlier": ("view_outlier", "view_rejected", "outlier_views", "view_is_outlier"),
+    "point_outlier": ("point_outlier", "corner_outlier", "outlier", "rejected"),
+    "sigma_u": ("uncertainty_u", "sigma_grid_u", "uncertainty_grid_u", "grid_u"),
+    "sigma_v": ("uncertainty_v", "sigma_grid_v", "uncertainty_grid_v", "grid_v"),
+    "sigma_map": ("uncertainty_px", "sigma_grid_px", "projection_sigma_px", "uncertainty_map", "sigma_grid"),
+    "cv_u": ("crossval_u", "cv_grid_u"),
+    "cv_v": ("crossval_v", "cv_grid_v"),
+    "cv_diff": ("crossval_diff_px", "crossval_diff", "cv_diff_px"),
+    "cv_sigma": ("crossval_sigma_px", "crossval_sigma", "cv_sigma_px"),
+    "param_values": ("param_values", "params"),
+    "param_sigmas": ("param_sigmas", "param_sigma", "sigmas"),
+    "param_names": ("param_names",),
+    # lidar-camera
+    "points": ("points_lidar", "cloud_points", "points", "p_lidar"),
+    "T_init": ("T_cam_lidar_init", "T_init", "T_before"),
+    "T_final": ("T_cam_lidar", "T_final", "T_after"),
+    "edge_uv_lidar": ("edge_uv_lidar", "match_uv_lidar", "uv_lidar_edges"),
+    "edge_uv_image": ("edge_uv_image", "match_uv_image", "uv_image_edges"),
+    "edge_residual": ("edge_residual_px", "match_residual_px", "edge_residual"),
+    "profile_offsets": ("profile_offsets", "cost_offsets"),
+    "profile_costs": ("profile_costs", "cost_profiles", "costs"),
+    "sigma6": ("sigma6", "sigma_params", "param_sigma6"),
+    # field
+    "pick_names": ("pick_names", "names", "landmark_names"),
+    "uv_picked": ("uv_picked", "picks_uv", "uv_picks"),
+    "uv_reproj": ("uv_reprojected", "uv_reproj", "reprojected_uv"),
+    "pick_outlier": ("pick_outlier", "outlier"),
+    "err_x": ("error_map_x", "grid_x", "map_x"),
+    "err_y": ("error_map_y", "grid_y", "map_y"),
+    "err_sigma": ("error_map_m", "error_map", "sigma_m", "map_sigma_m"),
+    "T_cam_field": ("T_cam_field",),
+}
+
+
+def _get(arrays: dict[str, np.ndarray], meta: dict, what: str) -> Any:
+    for name in _ALIASES.get(what, (what,)):
+        if name in arrays:
+            return arrays[name]
+        if name in meta:
+            return meta[name]
+    return None
+
+
+# --- sessions ----------------------------------------------------------------------------------------------------------
+def discover_sessions(bundle: Bundle, session_dir: str | os.PathLike | None = None) -> dict[str, tuple[dict, dict]]:
+    """All sessions: those referenced by the bundle (looked up in ``session_dir`` by file name when given, for a
+    bundle whose session folder moved) plus any other ``*.npz`` in ``session_dir`` (key from the file name,
+    ``intrinsics__cam0.npz`` → ``intrinsics/cam0``)."""
+    out: dict[str, tuple[dict, dict]] = {}
+    sdir = Path(session_dir) if session_dir is not None else None
+    if sdir is not None and not sdir.is_dir():
+        raise InputError(sdir, "session directory not found")
+    for key, rel in sorted(bundle.sessions.items()):
+        if sdir is not None and (sdir / Path(rel).name).is_file():
+            out[key] = _read_npz(sdir / Path(rel).name)
+        else:
+            out[key] = load_session(bundle, key)
+    if sdir is not None:
+        for p in sorted(sdir.glob("*.npz")):
+            key = p.stem.replace("__", "/")
+            if key not in out:
+                out[key] = _read_npz(p)
+    return out
+
+
+def _read_npz(p: Path) -> tuple[dict, dict]:
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files if k != "__meta__"}
+            meta = json.loads(str(z["__meta__"])) if "__meta__" in z.files else {}
+    except (OSError, ValueError) as e:
+        raise InputError(p, f"cannot read session file ({e.__class__.__name__})") from None
+    return arrays, meta
+
+
+def _read_image_from_meta(meta: dict, base: Path | None, *keys: str) -> np.ndarray | None:
+    for k in keys:
+        v = meta.get(k)
+        if isinstance(v, list):
+            v = v[0] if v else None
+        if not v:
+            continue
+        p = Path(v)
+        if not p.is_absolute() and base is not None:
+            p = base / p
+        if p.is_file():
+            try:
+                from radarcal.io import read_image
+
+                return read_image(p)
+            except InputError:
+                return None
+    return None
+
+
+# --- helpers --------------------------------------------------------------------------------------------------------
+class _Adder:
+    """Adds figures to a section, turning a failure into a note instead of losing the whole report."""
+
+    def __init__(self, section: Section, skipped: list[str]):
+        self.section = section
+        self.skipped = skipped
+
+    def __call__(self, label: str, make: Callable[[], Any], needs: dict[str, Any] | None = None, caption: str = "") -> None:
+        missing = [k for k, v in (needs or {}).items() if v is None]
+        if missing:
+            msg = f"{self.section.title}: {label} skipped (session lacks {', '.join(missing)})"
+            self.skipped.append(msg)
+            self.section.add(f"{label}: not available (the session does not contain {', '.join(missing)}).")
+            return
+        try:
+            self.section.add(make(), caption)
+        except (ValueError, KeyError, IndexError, TypeError) as e:
+            msg = f"{self.section.title}: {label} failed ({e.__class__.__name__}: {e})"
+            self.skipped.append(msg)
+            self.section.add(f"{label}: could not be drawn ({e}).")
+
+
+def _str_list(a: Any) -> list[str]:
+    if a is None:
+        return []
+    return [str(x) for x in np.asarray(a).ravel()]
+
+
+def _camera_param_table(name: str, entry) -> Table:
+    cam = entry.camera
+    dist_names = ["k1", "k2", "k3", "k4"] if cam.model == "fisheye" else ["k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4"]
+    names = ["fx", "fy", "cx", "cy"] + dist_names[: cam.dist.size]
+    values = [cam.fx, cam.fy, cam.cx, cam.cy] + list(cam.dist)
+    units = ["px"] * 4 + [""] * cam.dist.size
+    sig = entry.sigma or {}
+    rows = []
+    for n, v, u in zip(names, values, units):
+        s = sig.get(n)
+        vs, ss = ri.format_value_sigma(float(v), None if s is None else float(s))
+        rows.append([n, vs, ss, u])
+    if entry.rms_px is not None:
+        rows.append(["RMS", f"{entry.rms_px:.4f}", "", "px"])
+    return Table(["parameter", "value", "σ", "unit"], rows, caption=f"{name}: {cam.model}, {cam.width}×{cam.height}")
+
+
+def _overview(bundle: Bundle, skip_cameras: set[str] = frozenset()) -> Section:
+    sec = Section("Bundle overview")
+    path = str(bundle.path) if bundle.path else "(in memory)"
+    sec.add(f"Bundle {path}: {len(bundle.cameras)} camera(s), {len(bundle.transforms)} transform(s), {len(bundle.sessions)} session file(s).")
+    for name, entry in sorted(bundle.cameras.items()):
+        if name not in skip_cameras:  # those get their table in their intrinsics section
+            sec.add(_camera_param_table(name, entry))
+    if bundle.transforms:
+        from radarcal.geometry import T_to_xyz_rpy_deg
+
+        rows = []
+        for key, e in sorted(bundle.transforms.items()):
+            with warnings.catch_warnings():  # gimbal lock of the rpy display is harmless here
+                warnings.simplefilter("ignore")
+                xyzrpy = T_to_xyz_rpy_deg(e.T)
+            sig = e.sigma or {}
+            sig_txt = ", ".join(f"{k}={v:.3g}" for k, v in sig.items() if isinstance(v, (int, float))) or "—"
+            res = e.residual or {}
+            res_txt = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in res.items() if isinstance(v, (int, float, str))) or "—"
+            rows.append([key, e.method or "—", *(f"{v:.4f}" for v in xyzrpy[:3]), *(f"{v:.3f}" for v in xyzrpy[3:]), sig_txt, res_txt])
+        sec.add(Table(["transform", "method", "x (m)", "y (m)", "z (m)", "roll (°)", "pitch (°)", "yaw (°)", "σ", "residual"], rows, caption="Transforms (T_a_b maps b into a)"))
+    return sec
+
+
+# --- sections ----------------------------------------------------------------------------------------------------------
+def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dict, entry=None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
+    """Every intrinsics figure the session allows."""
+    sec = Section(f"Intrinsics: {camera_name}")
+    add = _Adder(sec, skipped if skipped is not None else [])
+    size = camera.image_size
+    uv = _get(arrays, meta, "uv")
+    res = _get(arrays, meta, "residual")
+    if res is None and uv is not None and _get(arrays, meta, "uv_proj") is not None:
+        res = np.asarray(uv, float) - np.asarray(_get(arrays, meta, "uv_proj"), float)
+    vidx = _get(arrays, meta, "view_index")
+    vnames = _str_list(_get(arrays, meta, "view_names"))
+    verr = _get(arrays, meta, "view_error")
+    if verr is None and res is not None and vidx is not None:
+        vidx_a = np.asarray(vidx, int).ravel()
+        n_views = max(len(vnames), int(vidx_a.max()) + 1 if vidx_a.size else 0)
+        mag = np.linalg.norm(np.asarray(res, float).reshape(-1, 2), axis=1)
+        verr = np.bincount(vidx_a, mag, n_views) / np.maximum(np.bincount(vidx_a, None, n_views), 1)
+    if verr is not None and len(vnames) != np.size(verr):
+        vnames = [f"view {i}" for i in range(np.size(verr))]
+    vout = _get(arrays, meta, "view_outlier")
+    pout = _get(arrays, meta, "point_outlier")
+    noise = meta.get("noise_sigma_px", meta.get("sigma_px", meta.get("expected_noise_px")))
+    rms = meta.get("rms_px", entry.rms_px if entry is not None else None)
+    if entry is not None:
+        sec.add(_camera_param_table(camera_name, entry))
+    add("per-view error", lambda: ri.per_view_error_figure(vnames, verr, vout, meta.get("view_threshold_px"), rms), {"per-view errors": verr})
+    add("residual vectors", lambda: ri.residual_vectors_figure(uv, res, size, image=image, outlier=pout), {"corner pixels": uv, "residuals": res})
+    add("residual histogram", lambda: ri.residual_histogram_figure(_inliers(res, pout), noise), {"residuals": res})
+    add("coverage", lambda: ri.coverage_figure(uv, size), {"corner pixels": uv})
+    su, sv, sm = _get(arrays, meta, "sigma_u"), _get(arrays, meta, "sigma_v"), _get(arrays, meta, "sigma_map")
+    thr = meta.get("valid_threshold_px", meta.get("uncertainty_threshold_px", noise if noise else 1.0))
+    add("projection uncertainty", lambda: ri.uncertainty_map_figure(su, sv, sm, size, float(thr), uv), {"uncertainty grid": sm, "grid u": su, "grid v": sv})
+    add("distortion field", lambda: ri.distortion_figure(camera))
+    cu, cv, cd = _get(arrays, meta, "cv_u"), _get(arrays, meta, "cv_v"), _get(arrays, meta, "cv_diff")
+    add("cross-validation", lambda: ri.crossval_difference_figure(cu, cv, cd, size, _get(arrays, meta, "cv_sigma")), {"cross-validation difference": cd, "grid u": cu, "grid v": cv})
+    return sec
+
+
+def _inliers(res, out):
+    r = np.asarray(res, float).reshape(-1, 2)
+    if out is None:
+        return r
+    return r[~np.asarray(out, bool).ravel()]
+
+
+def lidar_camera_section(key: str, camera: Camera, arrays: dict, meta: dict, T_final_bundle: np.ndarray | None = None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
+    sec = Section(f"LiDAR-camera: {key.split('/', 1)[-1]}")
+    add = _Adder(sec, skipped if skipped is not None else [])
+    pts = _get(arrays, meta, "points")
+    T0 = _get(arrays, meta, "T_init")
+    T1 = _get(arrays, meta, "T_final")
+    if T1 is None:
+        T1 = T_final_bundle
+    transforms = {k: np.asarray(v, float) for k, v in (("before", T0), ("after", T1)) if v is not None}
+    add("cloud over image", lambda: rl.cloud_overlay_figure(image, camera, pts, transforms), {"cloud points": pts, "a transform": transforms or None})
+    a, b, r = _get(arrays, meta, "edge_uv_lidar"), _get(arrays, meta, "edge_uv_image"), _get(arrays, meta, "edge_residual")
+    if r is None and a is not None and b is not None:
+        r = np.linalg.norm(np.asarray(b, float).reshape(-1, 2) - np.asarray(a, float).reshape(-1, 2), axis=1)
+    add("edge matches", lambda: rl.edge_matches_figure(image, camera.image_size, a, b, r), {"projected edge points": a, "matched image points": b})
+    add("edge residual histogram", lambda: rl.edge_residual_histogram_figure(r, meta.get("robust_scale_px")), {"edge residuals": r})
+    off, cost = _get(arrays, meta, "profile_offsets"), _get(arrays, meta, "profile_costs")
+    sig6 = _get(arrays, meta, "sigma6")
+    deg = math.degrees(1.0)
+    add("cost profiles", lambda: rl.cost_profile_figure(off, cost, display_scale=[deg] * 3 + [1.0] * 3, sigma=None if sig6 is None else np.asarray(sig6, float)), {"cost profiles": cost, "profile offsets": off})
+    if sig6 is not None:
+        s = np.asarray(sig6, float).ravel()
+        rows = [[n, f"{v * (deg if i < 3 else 1):.4g}", "deg" if i < 3 else "m"] for i, (n, v) in enumerate(zip(rl.PARAM_NAMES, s))]
+        sec.add(Table(["parameter", "σ", "unit"], rows, caption="σ of the result (from the Jacobian)"))
+    return sec
+
+
+def field_drawing_args(field_model: Any) -> dict:
+    """``size``, ``landmarks`` and ``outline`` polygons for the field figures, from a FieldModel or its dict."""
+    if field_model is None:
+        return {}
+    d = field_model.to_dict() if hasattr(field_model, "to_dict") else dict(field_model)
+    outline = []
+    if d.get("outline") is not None and len(d["outline"]):
+        outline.append(np.asarray(d["outline"], float))
+    for a in d.get("areas") or []:
+        if a.get("polygon") is not None:
+            outline.append(np.asarray(a["polygon"], float))
+    size = tuple(float(v) for v in (d.get("size") or (28.0, 15.0))[:2])
+    lms = {str(k): np.asarray(v, float) for k, v in (d.get("landmarks") or {}).items()}
+    return {"size": size, "landmarks": lms, "outline": outline}
+
+
+def field_section(camera_name: str, camera: Camera | None, arrays: dict, meta: dict, field_model: Any, T_cam_field: np.ndarray | None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
+    sec = Section(f"Field pose: {camera_name}")
+    add = _Adder(sec, skipped if skipped is not None else [])
+    fa = field_drawing_args(field_model if field_model is not None else meta.get("field"))
+    names = _str_list(_get(arrays, meta, "pick_names"))
+    T = _get(arrays, meta, "T_cam_field")
+    T = np.asarray(T, float) if T is not None else T_cam_field
+    add("field and landmarks", lambda: rf.field_landmarks_figure(fa["size"], fa["landmarks"], T, names, fa["outline"]), {"field model": fa or None})
+    a, b = _get(arrays, meta, "uv_picked"), _get(arrays, meta, "uv_reproj")
+    size = camera.image_size if camera is not None else tuple(meta.get("image_size", (1280, 1024)))
+    add("picks and residuals", lambda: rf.picks_residual_figure(size, names, a, b, image, outlier=_get(arrays, meta, "pick_outlier")), {"picked pixels": a, "reprojected landmarks": b})
+    x, y, s = _get(arrays, meta, "err_x"), _get(arrays, meta, "err_y"), _get(arrays, meta, "err_sigma")
+    add("localisation error map", lambda: rf.localisation_error_figure(x, y, s, fa.get("size", (28.0, 15.0)), T, fa.get("landmarks"), fa.get("outline")), {"error map": s, "grid x": x, "grid y": y})
+    return sec
+
+
+# --- run tracks ---------------------------------------------------------------------------------------------------------
+def read_tracks(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+    """A ``radarcal run`` track file (JSON lines, one per frame: ``{"t": s, "robots": [{"label", "x", "y", …}]}``;
+    ``xyz``/``p_field``/``field`` lists are accepted too) → (times per label, field xyz (N, 3) per label)."""
+    path = Path(path)
+    t_by: dict[str, list[float]] = {}
+    p_by: dict[str, list[list[float]]] = {}
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except OSError as e:
+        raise InputError(path, f"cannot read track file ({e.__class__.__name__})") from None
+    for i, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+            t = float(rec.get("t", rec.get("time", i)))
+            robots = rec.get("robots", rec.get("tracks", rec.get("targets", [])))
+            for r in robots:
+                label = str(r.get("label", r.get("id", r.get("name", "?"))))
+                p = _robot_xyz(r)
+                if p is None:
+                    continue
+                t_by.setdefault(label, []).append(t)
+                p_by.setdefault(label, []).append(p)
+        except (ValueError, TypeError, AttributeError) as e:
+            raise InputError(path, f"line {i}: not a track record ({e.__class__.__name__})") from None
+    return ({k: np.asarray(v) for k, v in t_by.items()}, {k: np.asarray(v, float).reshape(-1, 3) for k, v in p_by.items()})
+
+
+def _robot_xyz(r: dict) -> list[float] | None:
+    for k in ("xyz", "p_field", "field", "position", "pos"):
+        v = r.get(k)
+        if isinstance(v, (list, tuple)) and len(v) >= 2:
+            return [float(v[0]), float(v[1]), float(v[2]) if len(v) > 2 and v[2] is not None else 0.0]
+        if isinstance(v, dict) and "x" in v:
+            return [float(v["x"]), float(v["y"]), float(v.get("z", 0.0))]
+    if "x" in r and "y" in r:
+        return [float(r["x"]), float(r["y"]), float(r.get("z", 0.0) or 0.0)]
+    return None
+
+
+def run_section(tracks_t: dict, tracks_p: dict, field_model: Any = None, truth_t: dict | None = None, truth_p: dict | None = None, skipped: list[str] | None = None) -> Section:
+    """Minimap with tracks; with truth (same labels), error over time (truth interpolated at the track times)."""
+    sec = Section("Run: tracks")
+    add = _Adder(sec, skipped if skipped is not None else [])
+    fa = field_drawing_args(field_model) or {"size": (28.0, 15.0), "landmarks": None, "outline": None}
+    truth_xy = None
+    if truth_t and truth_p:
+        truth_xy = {k: truth_p[k] for k in tracks_p if k in truth_p}
+    add("minimap", lambda: rf.minimap_tracks_figure(fa["size"], tracks_p, truth_xy, fa["outline"], None))
+    if truth_t and truth_p:
+        common = sorted(set(tracks_p) & set(truth_p))
+        err = {}
+        for k in common:
+            tt, tp = np.asarray(truth_t[k], float), np.asarray(truth_p[k], float)
+            order = np.argsort(tt)
+            tx = np.interp(tracks_t[k], tt[order], tp[order, 0], left=np.nan, right=np.nan)
+            ty = np.interp(tracks_t[k], tt[order], tp[order, 1], left=np.nan, right=np.nan)
+            err[k] = np.hypot(tracks_p[k][:, 0] - tx, tracks_p[k][:, 1] - ty)
+        add("error over time", lambda: rf.error_over_time_figure({k: tracks_t[k] for k in err}, err), {"labels shared with the truth": err or None})
+    return sec
+
+
+# --- the whole report --------------------------------------------------------------------------------------------------
+def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, tracks: str | os.PathLike | None = None, truth_tracks: str | os.PathLike | None = None) -> ReportContent:
+    """All sections the bundle's sessions (and an optional run track file) allow."""
+    content = ReportContent()
+    sessions = discover_sessions(bundle, session_dir)
+    base = bundle.path.parent if bundle.path else None
+    field_model = bundle.field_model
+    order = {"intrinsics": 0, "lidar_camera": 1, "field_pnp": 2}
+    with_intrinsics = {k.partition("/")[2] for k in sessions if k.startswith("intrinsics/")}
+    content.sections.append(_overview(bundle, skip_cameras=with_intrinsics))
+    for key, (arrays, meta) in sorted(sessions.items(), key=lambda kv: (order.get(kv[0].partition("/")[0], 9), kv[0])):
+        kind, _, rest = key.partition("/")
+        if kind == "intrinsics":
+            cam_name = rest
+            if cam_name in bundle.cameras:
+                cam, entry = bundle.cameras[cam_name].camera, bundle.cameras[cam_name]
+            elif "camera" in meta:
+                cam, entry = Camera.from_dict(meta["camera"]), None
+            else:
+                content.skipped.append(f"{key}: camera {cam_name!r} not in the bundle")
+                continue
+            img = _read_image_from_meta(meta, base, "image", "images", "image_files", "view_files")
+            content.sections.append(intrinsics_section(cam_name, cam, arrays, meta, entry, img, content.skipped))
+        elif kind == "lidar_camera":
+            cam_name = meta.get("camera") or rest.split("_")[0]
+            lidar_name = meta.get("lidar") or rest[len(cam_name) + 1 :]
+            if cam_name not in bundle.cameras:
+                content.skipped.append(f"{key}: camera {cam_name!r} not in the bundle")
+                continue
+            T_b = bundle.T(cam_name, lidar_name) if bundle.has_T(cam_name, lidar_name) else None
+            img = _read_image_from_meta(meta, base, "image", "images")
+            content.sections.append(lidar_camera_section(key, bundle.cameras[cam_name].camera, arrays, meta, T_b, img, content.skipped))
+        elif kind == "field_pnp":
+            cam_name = rest
+            cam = bundle.cameras[cam_name].camera if cam_name in bundle.cameras else None
+            T = None
+            for frame in ("field",):
+                if bundle.has_T(cam_name, frame):
+                    T = bundle.T(cam_name, frame)
+            img = _read_image_from_meta(meta, base, "image")
+            content.sections.append(field_section(cam_name, cam, arrays, meta, field_model, T, img, content.skipped))
+        else:
+            sec = Section(f"Session {key}")
+            sec.add(f"No report section for this kind of session; arrays: {', '.join(sorted(arrays)) or 'none'}.")
+            content.sections.append(sec)
+    if tracks is not None:
+        tt, tp = read_tracks(tracks)
+        gt, gp = read_tracks(truth_tracks) if truth_tracks is not None else (None, None)
+        content.sections.append(run_section(tt, tp, field_model, gt, gp, content.skipped))
+    return content

@@ -1,0 +1,200 @@
+"""`radarcal report` end to end on a bundle with generated session files of known content, and the HTML rendered by
+headless Chromium (when installed) to check that the page is not blank and shows its figures."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from radarcal.bundle import Bundle, save_bundle, save_session
+from radarcal.camera import Camera
+from radarcal.cli.main import main as cli
+from radarcal.geometry import T_from_xyz_rpy_deg, make_T
+from radarcal.report.html import Section, Table, inline_pngs, render_html
+
+CAM = Camera((1280, 1024), [[1000.0, 0, 640.0], [0, 1000.0, 512.0], [0, 0, 1]], [-0.12, 0.05, 0.0005, -0.0003, 0.0])
+T_CAM_LIDAR = make_T(np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]]), [0.02, 0.1, 0.05])
+
+
+def _intrinsics_arrays(rng):
+    """Board corners seen in 12 views, projected with CAM, plus 0.2 px noise; view 3 carries 2 px noise."""
+    obj = np.stack(np.meshgrid(np.arange(9) * 0.05, np.arange(6) * 0.05), -1).reshape(-1, 2)
+    obj = np.c_[obj, np.zeros(len(obj))]
+    uv_all, res_all, vidx = [], [], []
+    for v in range(12):
+        T = T_from_xyz_rpy_deg(rng.uniform(-0.4, 0.2), rng.uniform(-0.3, 0.1), rng.uniform(0.8, 1.4), rng.uniform(-20, 20), rng.uniform(-20, 20), rng.uniform(-10, 10))
+        uv, valid, _ = CAM.project_from(T, obj)
+        noise = rng.normal(0, 2.0 if v == 3 else 0.2, uv.shape)
+        uv_all.append(uv + noise)
+        res_all.append(noise)
+        vidx.append(np.full(len(uv), v))
+    uv, res, vidx = np.concatenate(uv_all), np.concatenate(res_all), np.concatenate(vidx)
+    u = np.linspace(0, 1279, 33)
+    v = np.linspace(0, 1023, 27)
+    uu, vv = np.meshgrid(u, v)
+    sigma = 0.05 + (np.hypot(uu - 640, vv - 512) / 600.0) ** 2
+    view_err = np.bincount(vidx, np.linalg.norm(res, axis=1)) / np.bincount(vidx)
+    return {
+        "uv_observed": uv,
+        "residual_px": res,
+        "view_index": vidx,
+        "view_names": np.array([f"img{i:02d}.png" for i in range(12)]),
+        "view_error_px": view_err,
+        "view_outlier": view_err > 1.0,
+        "uncertainty_u": u,
+        "uncertainty_v": v,
+        "uncertainty_px": sigma,
+        "crossval_u": u,
+        "crossval_v": v,
+        "crossval_diff_px": 0.5 * sigma,
+    }
+
+
+@pytest.fixture
+def bundle_path(tmp_path):
+    rng = np.random.default_rng(0)
+    b = Bundle(path=tmp_path / "calib.yaml")
+    b.set_camera("cam0", CAM, rms_px=0.21, sigma={"fx": 0.31, "fy": 0.3, "cx": 0.25, "cy": 0.22})
+    b.set_transform("cam0", "lidar0", T_CAM_LIDAR, method="edges")
+    T_field_cam = make_T(np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]) @ T_from_xyz_rpy_deg(0, 0, 0, 20, 0, 0)[:3, :3], [-1.0, 7.5, 2.5])
+    b.set_transform("cam0", "field", np.linalg.inv(T_field_cam), method="field-pnp")
+    b.field_model = {"name": "test", "size": [28.0, 15.0], "landmarks": {"a": [0, 0, 0], "b": [28, 15, 0], "c": [14, 7.5, 0.6], "d": [10, 2, 0]}, "outline": [[0, 0], [28, 0], [28, 15], [0, 15]]}
+    save_session(b, "intrinsics/cam0", _intrinsics_arrays(rng), {"noise_sigma_px": 0.2, "valid_threshold_px": 0.2})
+    pts = np.c_[rng.uniform(2, 30, 20000), rng.uniform(-8, 8, 20000), rng.uniform(-2, 4, 20000)]
+    a = rng.uniform([0, 0], [1280, 1024], (300, 2))
+    x = np.linspace(-1, 1, 9)
+    save_session(
+        b,
+        "lidar_camera/cam0_lidar0",
+        {
+            "points_lidar": pts.astype(np.float32),
+            "T_cam_lidar_init": T_from_xyz_rpy_deg(0.05, 0, 0, 2, 1, 0) @ T_CAM_LIDAR,
+            "T_cam_lidar": T_CAM_LIDAR,
+            "edge_uv_lidar": a,
+            "edge_uv_image": a + rng.normal(0, 1, a.shape),
+            "profile_offsets": np.r_[[x * 0.02] * 3, [x * 0.1] * 3],
+            "profile_costs": 1 + np.r_[[x**2] * 6],
+            "sigma6": np.array([1e-3, 1e-3, 2e-3, 0.01, 0.01, 0.02]),
+        },
+        {"camera": "cam0", "lidar": "lidar0"},
+    )
+    xg = np.linspace(0, 28, 29)
+    yg = np.linspace(0, 15, 16)
+    xx, yy = np.meshgrid(xg, yg)
+    save_session(
+        b,
+        "field_pnp/cam0",
+        {
+            "pick_names": np.array(["a", "b", "c", "d"]),
+            "uv_picked": np.array([[100.0, 800], [1200, 300], [640, 400], [300, 900]]),
+            "uv_reprojected": np.array([[100.5, 800.2], [1199, 300.4], [640.3, 399.5], [300.0, 901.0]]),
+            "error_map_x": xg,
+            "error_map_y": yg,
+            "error_map_m": 0.02 * np.hypot(xx + 1, yy - 7.5),
+        },
+        {},
+    )
+    save_bundle(b, b.path)
+    tracks = tmp_path / "track.jsonl"
+    truth = tmp_path / "truth.jsonl"
+    t = np.arange(50) * 0.1
+    with open(tracks, "w") as f, open(truth, "w") as g:
+        for ti in t:
+            f.write(json.dumps({"t": ti, "robots": [{"label": "R1", "x": 2 + ti + 0.1, "y": 3.0}, {"label": "B3", "xyz": [20 - ti, 10.0, 0.0]}]}) + "\n")
+            g.write(json.dumps({"t": ti, "robots": [{"label": "R1", "x": 2 + ti, "y": 3.0}, {"label": "B3", "xyz": [20 - ti, 10.2, 0.0]}]}) + "\n")
+    return b.path
+
+
+def test_report_cli_writes_every_section(bundle_path, tmp_path, capsys):
+    out = tmp_path / "report.html"
+    rc = cli(["report", str(bundle_path), "-o", str(out), "--tracks", str(tmp_path / "track.jsonl"), "--truth", str(tmp_path / "truth.jsonl"), "--dpi", "50", "--json"])
+    assert rc == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["skipped"] == []
+    titles = s["sections"]
+    assert titles == ["Bundle overview", "Intrinsics: cam0", "LiDAR-camera: cam0_lidar0", "Field pose: cam0", "Run: tracks"]
+    # intrinsics 7 + lidar-camera 4 + field 3 + run 2
+    assert s["figures"] == 16
+    html = out.read_text()
+    pngs = inline_pngs(html)
+    assert len(pngs) == 16
+    assert "http://" not in html and "https://" not in html and "<script" not in html
+    import cv2
+
+    for png in pngs:
+        img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_GRAYSCALE)
+        assert img is not None and img.std() > 5
+    assert "0.31" in html  # σ of fx from the bundle in the parameter table
+
+
+def test_report_session_dir_and_errors(bundle_path, tmp_path, capsys):
+    moved = tmp_path / "moved"
+    shutil.copytree(tmp_path / "calib.sessions", moved)
+    shutil.rmtree(tmp_path / "calib.sessions")
+    out = tmp_path / "r.html"
+    assert cli(["report", str(bundle_path), "-o", str(out), "--session", str(moved), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["figures"] == 14
+    # the sessions are gone from their place: without --session the report names the file
+    assert cli(["report", str(bundle_path), "-o", str(out)]) == 2
+    assert "cannot read session file" in capsys.readouterr().err
+    assert cli(["report", str(tmp_path / "nope.yaml"), "-o", str(out)]) == 2
+    assert cli(["report", str(bundle_path), "-o", str(out), "--session", str(moved), "--tracks", str(tmp_path / "none.jsonl")]) == 2
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text('{"t": 0, "robots": [{"label": "R1", "x": 1, "y": 2}]}\nnot json\n')
+    assert cli(["report", str(bundle_path), "-o", str(out), "--session", str(moved), "--tracks", str(bad)]) == 2
+    assert "line 2" in capsys.readouterr().err
+
+
+def test_report_skips_what_a_session_lacks(tmp_path, capsys):
+    b = Bundle(path=tmp_path / "b.yaml")
+    b.set_camera("cam0", CAM)
+    save_session(b, "intrinsics/cam0", {"uv_observed": np.array([[10.0, 10.0], [500.0, 600.0]])}, {})
+    save_bundle(b, b.path)
+    assert cli(["report", str(b.path), "-o", str(tmp_path / "r.html"), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["figures"] == 2  # coverage + distortion field: all that corners alone allow
+    assert any("residual" in k for k in s["skipped"])
+    assert "not available" in (tmp_path / "r.html").read_text()
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+def _screenshot(html_path: Path, png_path: Path, size=(1300, 2400)) -> np.ndarray:
+    import cv2
+
+    exe = _chromium()
+    cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking", "--no-first-run", "--hide-scrollbars", f"--window-size={size[0]},{size[1]}", f"--screenshot={png_path}", html_path.resolve().as_uri()]
+    subprocess.run(cmd, capture_output=True, timeout=60, check=False)
+    img = cv2.imread(str(png_path), cv2.IMREAD_COLOR)
+    assert img is not None, "chromium wrote no screenshot"
+    return img
+
+
+@pytest.mark.skipif(_chromium() is None, reason="no headless Chromium installed (apt-get install chromium); the inline PNGs are checked by test_report_cli_writes_every_section")
+def test_report_renders_in_chromium(bundle_path, tmp_path):
+    import cv2
+
+    out = tmp_path / "report.html"
+    assert cli(["report", str(bundle_path), "-o", str(out), "--dpi", "60"]) == 0
+    img = _screenshot(out, tmp_path / "report.png", (1300, 3000))
+    gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    assert gray.std() > 20, "the rendered page is blank"
+    # the figures are drawn: coloured content over a good part of the page height
+    sat = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)[..., 1] > 80
+    rows_with_colour = float(np.mean(sat.any(axis=1)))
+    assert rows_with_colour > 0.3, f"only {rows_with_colour:.0%} of the page rows show coloured content"
+    # known content: the outlier view (view 3, 2 px noise) is a saturated red bar in the first figure
+    b, g, r = (img[..., i].astype(int) for i in range(3))
+    red = (r > 150) & (g < 90) & (b < 90)  # tab:red = (214, 39, 40)
+    assert red.sum() > 300, "the outlier bar of the per-view error figure is not visible"
