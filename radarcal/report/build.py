@@ -245,7 +245,12 @@ def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dic
         sec.add(_camera_param_table(camera_name, entry))
     add("per-view error", lambda: ri.per_view_error_figure(vnames, verr, vout, meta.get("view_threshold_px"), rms), {"per-view errors": verr})
     add("residual vectors", lambda: ri.residual_vectors_figure(uv, res, size, image=image, outlier=pout), {"corner pixels": uv, "residuals": res})
-    add("residual histogram", lambda: ri.residual_histogram_figure(_inliers(res, pout), noise), {"residuals": res})
+    excluded = None if pout is None else np.asarray(pout, bool).ravel()
+    if vout is not None and vidx is not None and res is not None:
+        vo = np.asarray(vout, bool).ravel()
+        in_bad_view = vo[np.clip(np.asarray(vidx, int).ravel(), 0, vo.size - 1)]
+        excluded = in_bad_view if excluded is None else (excluded | in_bad_view)
+    add("residual histogram", lambda: ri.residual_histogram_figure(_inliers(res, excluded), noise, title="Residuals (inliers) against the expected noise"), {"residuals": res})
     add("coverage", lambda: ri.coverage_figure(uv, size), {"corner pixels": uv})
     su, sv, sm = _get(arrays, meta, "sigma_u"), _get(arrays, meta, "sigma_v"), _get(arrays, meta, "sigma_map")
     thr = meta.get("valid_threshold_px", meta.get("uncertainty_threshold_px", noise if noise else 1.0))

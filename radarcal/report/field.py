@@ -96,7 +96,7 @@ def picks_residual_figure(image_size: tuple[int, int], names: Sequence[str], uv_
         ax.annotate(f"{n} {e:.2f}px", p, xytext=(5, -8), textcoords="offset points", fontsize=7, color="white", bbox=dict(fc="black", alpha=0.5, lw=0, pad=1))
     ax.legend(fontsize=8, loc="lower right")
     rms = float(np.sqrt(np.mean(err**2))) if err.size else float("nan")
-    ax.set_title(f"{title} (RMS {rms:.2f} px; arrows ×{scale:.0f})")
+    ax.set_title(f"{title}\nRMS {rms:.2f} px; arrows ×{scale:.0f}", fontsize=10)
     return fig
 
 
@@ -123,7 +123,7 @@ def localisation_error_figure(x_grid: np.ndarray, y_grid: np.ndarray, sigma_m: n
         ax.plot(c[0], c[1], "^", color="tab:blue", ms=10, zorder=5, label="camera")
         ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     med = float(np.median(finite)) if finite.size else float("nan")
-    ax.set_title(f"{title}: median {med:.2f} m, visible over {np.isfinite(s).mean():.0%} of the grid")
+    ax.set_title(f"{title}\nmedian {med:.2f} m, visible over {np.isfinite(s).mean():.0%} of the grid", fontsize=10)
     return fig
 
 

@@ -54,7 +54,7 @@ def per_view_error_figure(view_names: Sequence[str], view_error_px: np.ndarray, 
     ax.set_xticklabels(names, rotation=60, ha="right", fontsize=7)
     ax.set_ylabel("mean |residual| (px)")
     n_out = int(out.sum())
-    ax.set_title(f"{title} ({err.size} views, {n_out} outlier{'s' if n_out != 1 else ''} in red)")
+    ax.set_title(f"{title}\n{err.size} views, {n_out} outlier{'s' if n_out != 1 else ''} in red", fontsize=10)
     if threshold_px is not None or rms_px is not None:
         ax.legend(fontsize=8)
     return fig
@@ -101,7 +101,7 @@ def residual_histogram_figure(residual_px: np.ndarray, expected_sigma_px: float 
         ax.plot(xs, np.exp(-0.5 * (xs / sigma) ** 2) / (sigma * np.sqrt(2 * np.pi)), "k-", lw=1.5, label=f"expected N(0, {sigma:.3f}²)")
     ax.set_xlabel("residual (px)")
     ax.set_ylabel("density")
-    ax.set_title(f"{title}: observed σ = {observed:.3f} px, expected {sigma:.3f} px")
+    ax.set_title(f"{title}\nobserved σ = {observed:.3f} px, expected {sigma:.3f} px", fontsize=10)
     ax.legend(fontsize=8)
     return fig
 
@@ -127,7 +127,7 @@ def coverage_figure(uv: np.ndarray, image_size: tuple[int, int], cells: tuple[in
     show_image(ax, image_size)
     fig.colorbar(im, ax=ax, label="corners per cell", shrink=0.8)
     empty = float(np.mean(counts == 0))
-    ax.set_title(f"{title}: {int(counts.sum())} corners, {empty:.0%} of cells empty")
+    ax.set_title(f"{title}\n{int(counts.sum())} corners, {empty:.0%} of cells empty", fontsize=10)
     return fig
 
 
@@ -162,7 +162,7 @@ def uncertainty_map_figure(u_grid: np.ndarray, v_grid: np.ndarray, sigma_px: np.
         p = np.asarray(uv_observed, float).reshape(-1, 2)
         ax.plot(p[:, 0], p[:, 1], ".", ms=1, color="tab:red", alpha=0.4)
     show_image(ax, image_size)
-    ax.set_title(f"{title}: valid (σ < {threshold_px:.2g} px, white line) over {mask.mean():.0%} of the image")
+    ax.set_title(f"{title}\nvalid (σ < {threshold_px:.2g} px, white line) over {mask.mean():.0%} of the image", fontsize=10)
     return fig
 
 
@@ -196,7 +196,7 @@ def distortion_figure(camera: Camera, cells: tuple[int, int] = (32, 26), arrows:
     ax.quiver(ua[..., 0], ua[..., 1], da[..., 0], da[..., 1], angles="xy", scale_units="xy", scale=1.0, color="white", width=0.002)
     ax.plot([camera.cx], [camera.cy], "+", color="cyan", ms=12, mew=2)
     show_image(ax, camera.image_size)
-    ax.set_title(f"{title} ({camera.model}, max {mag.max():.1f} px at the corners; arrows to scale)")
+    ax.set_title(f"{title} ({camera.model})\nmax {mag.max():.1f} px; arrows to scale", fontsize=10)
     return fig
 
 

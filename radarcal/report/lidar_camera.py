@@ -80,7 +80,7 @@ def edge_matches_figure(image: np.ndarray | None, image_size: tuple[int, int], u
     ax.plot(a[:, 0], a[:, 1], ".", ms=1.5, color="cyan", label="LiDAR edge (projected)")
     fig.colorbar(lc, ax=ax, label="residual (px)", shrink=0.8)
     ax.legend(fontsize=8, loc="upper right")
-    ax.set_title(f"{title}: {len(res)} shown, median residual {np.median(res) if res.size else float('nan'):.2f} px")
+    ax.set_title(f"{title}\n{len(res)} shown, median residual {np.median(res) if res.size else float('nan'):.2f} px", fontsize=10)
     return fig
 
 
