@@ -56,7 +56,7 @@ _ALIASES: dict[str, tuple[str, ...]] = {
     "point_outlier": ("point_outlier", "corner_outlier", "outlier", "rejected"),
     "sigma_u": ("uncertainty_u", "sigma_grid_u", "uncertainty_grid_u", "grid_u"),
     "sigma_v": ("uncertainty_v", "sigma_grid_v", "uncertainty_grid_v", "grid_v"),
-    "sigma_map": ("uncertainty_px", "sigma_grid_px", "projection_sigma_px", "uncertainty_map", "sigma_grid"),
+    "sigma_map": ("uncertainty_sigma_px", "uncertainty_px", "sigma_grid_px", "projection_sigma_px", "uncertainty_map", "sigma_grid"),
     "cv_u": ("crossval_u", "cv_grid_u"),
     "cv_v": ("crossval_v", "cv_grid_v"),
     "cv_diff": ("crossval_diff_px", "crossval_diff", "cv_diff_px"),
@@ -227,9 +227,28 @@ def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dic
     res = _get(arrays, meta, "residual")
     if res is None and uv is not None and _get(arrays, meta, "uv_proj") is not None:
         res = np.asarray(uv, float) - np.asarray(_get(arrays, meta, "uv_proj"), float)
-    vidx = _get(arrays, meta, "view_index")
-    vnames = _str_list(_get(arrays, meta, "view_names"))
-    verr = _get(arrays, meta, "view_error")
+    summary = meta.get("summary") if isinstance(meta.get("summary"), dict) else {}
+    verr_label = "mean |residual| (px)"
+    if "corner_view" in arrays:
+        # `radarcal intrinsics` layout: names/status of every input; view_index = the solved views' input index;
+        # corner_view = solved-view index per corner; inliers per corner; view_used / view_rms_px per solved view
+        vidx = arrays["corner_view"]
+        all_names = _str_list(arrays.get("names"))
+        vi = np.asarray(arrays.get("view_index", np.arange(int(np.max(vidx, initial=-1)) + 1)), int).ravel()
+        vnames = [all_names[i] if 0 <= i < len(all_names) else f"view {i}" for i in vi]
+        verr = arrays.get("view_rms_px")
+        verr_label = "RMS of inlier residuals (px)"
+        vout = ~np.asarray(arrays["view_used"], bool) if "view_used" in arrays else None
+        pout = ~np.asarray(arrays["inliers"], bool) if "inliers" in arrays else None
+        status = _str_list(arrays.get("status"))
+        rejected = [[n, st] for n, st in zip(all_names, status) if st != "used"]
+    else:
+        vidx = _get(arrays, meta, "view_index")
+        vnames = _str_list(_get(arrays, meta, "view_names"))
+        verr = _get(arrays, meta, "view_error")
+        vout = _get(arrays, meta, "view_outlier")
+        pout = _get(arrays, meta, "point_outlier")
+        rejected = []
     if verr is None and res is not None and vidx is not None:
         vidx_a = np.asarray(vidx, int).ravel()
         n_views = max(len(vnames), int(vidx_a.max()) + 1 if vidx_a.size else 0)
@@ -237,13 +256,22 @@ def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dic
         verr = np.bincount(vidx_a, mag, n_views) / np.maximum(np.bincount(vidx_a, None, n_views), 1)
     if verr is not None and len(vnames) != np.size(verr):
         vnames = [f"view {i}" for i in range(np.size(verr))]
-    vout = _get(arrays, meta, "view_outlier")
-    pout = _get(arrays, meta, "point_outlier")
-    noise = meta.get("noise_sigma_px", meta.get("sigma_px", meta.get("expected_noise_px")))
-    rms = meta.get("rms_px", entry.rms_px if entry is not None else None)
+    if all(k in arrays for k in ("K", "dist", "image_size")):  # the camera this session was solved for
+        model = "fisheye" if str(summary.get("model", meta.get("model", ""))).startswith("fisheye") else camera.model
+        try:
+            camera = Camera(tuple(int(x) for x in np.asarray(arrays["image_size"]).ravel()[:2]), arrays["K"], arrays["dist"], model)
+            size = camera.image_size
+        except ValueError:
+            pass
+    noise = meta.get("noise_sigma_px", meta.get("sigma_px", meta.get("expected_noise_px", summary.get("noise_px"))))
+    rms = meta.get("rms_px", summary.get("rms_px", entry.rms_px if entry is not None else None))
     if entry is not None:
         sec.add(_camera_param_table(camera_name, entry))
-    add("per-view error", lambda: ri.per_view_error_figure(vnames, verr, vout, meta.get("view_threshold_px"), rms), {"per-view errors": verr})
+    if rejected:
+        sec.add(Table(["input", "why not used"], rejected, caption=f"{len(rejected)} input(s) not used"))
+    for w in summary.get("warnings") or []:
+        sec.add(f"warning: {w}")
+    add("per-view error", lambda: ri.per_view_error_figure(vnames, verr, vout, meta.get("view_threshold_px"), rms, ylabel=verr_label), {"per-view errors": verr})
     add("residual vectors", lambda: ri.residual_vectors_figure(uv, res, size, image=image, outlier=pout), {"corner pixels": uv, "residuals": res})
     excluded = None if pout is None else np.asarray(pout, bool).ravel()
     if vout is not None and vidx is not None and res is not None:
@@ -253,7 +281,8 @@ def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dic
     add("residual histogram", lambda: ri.residual_histogram_figure(_inliers(res, excluded), noise, title="Residuals (inliers) against the expected noise"), {"residuals": res})
     add("coverage", lambda: ri.coverage_figure(uv, size), {"corner pixels": uv})
     su, sv, sm = _get(arrays, meta, "sigma_u"), _get(arrays, meta, "sigma_v"), _get(arrays, meta, "sigma_map")
-    thr = meta.get("valid_threshold_px", meta.get("uncertainty_threshold_px", noise if noise else 1.0))
+    unc = summary.get("uncertainty") if isinstance(summary.get("uncertainty"), dict) else {}
+    thr = meta.get("valid_threshold_px", meta.get("uncertainty_threshold_px", unc.get("threshold_px", noise if noise else 1.0)))
     add("projection uncertainty", lambda: ri.uncertainty_map_figure(su, sv, sm, size, float(thr), uv), {"uncertainty grid": sm, "grid u": su, "grid v": sv})
     add("distortion field", lambda: ri.distortion_figure(camera))
     cu, cv, cd = _get(arrays, meta, "cv_u"), _get(arrays, meta, "cv_v"), _get(arrays, meta, "cv_diff")

@@ -32,7 +32,7 @@ __all__ = [
 
 
 # --- per-view error ----------------------------------------------------------------------------------------------
-def per_view_error_figure(view_names: Sequence[str], view_error_px: np.ndarray, outlier: np.ndarray | None = None, threshold_px: float | None = None, rms_px: float | None = None, title: str = "Mean reprojection error per view"):
+def per_view_error_figure(view_names: Sequence[str], view_error_px: np.ndarray, outlier: np.ndarray | None = None, threshold_px: float | None = None, rms_px: float | None = None, title: str = "Reprojection error per view", ylabel: str = "mean |residual| (px)"):
     """Bar per view (mean |residual| in px); outlier views red and hatched; optional rejection threshold line."""
     err = np.asarray(view_error_px, float).ravel()
     names = [str(n) for n in view_names]
@@ -52,7 +52,7 @@ def per_view_error_figure(view_names: Sequence[str], view_error_px: np.ndarray, 
         ax.axhline(rms_px, color="gray", ls=":", lw=1, label=f"overall RMS {rms_px:.3f} px")
     ax.set_xticks(x)
     ax.set_xticklabels(names, rotation=60, ha="right", fontsize=7)
-    ax.set_ylabel("mean |residual| (px)")
+    ax.set_ylabel(ylabel)
     n_out = int(out.sum())
     ax.set_title(f"{title}\n{err.size} views, {n_out} outlier{'s' if n_out != 1 else ''} in red", fontsize=10)
     if threshold_px is not None or rms_px is not None:
@@ -233,7 +233,11 @@ def crossval_difference_figure(u_grid: np.ndarray, v_grid: np.ndarray, diff_px: 
     u = np.asarray(u_grid, float).ravel()
     v = np.asarray(v_grid, float).ravel()
     fig, ax = new_figure(7.0, 7.0 * image_size[1] / image_size[0] + 0.6)
-    im = ax.pcolormesh(u, v, np.ma.masked_invalid(diff), cmap="inferno", shading="nearest")
+    from matplotlib.colors import LogNorm
+
+    finite = diff[np.isfinite(diff) & (diff > 0)]
+    lo, hi = (max(float(finite.min()), float(finite.max()) * 1e-4), float(finite.max())) if finite.size else (1e-3, 1.0)
+    im = ax.pcolormesh(u, v, np.ma.masked_invalid(np.maximum(diff, lo)), cmap="inferno", shading="nearest", norm=LogNorm(lo, max(hi, lo * 1.01)))
     fig.colorbar(im, ax=ax, label="|Δ projection| (px)", shrink=0.8)
     note = ""
     if sigma_px is not None:
