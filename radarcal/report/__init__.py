@@ -5,7 +5,7 @@ Every figure function takes numpy arrays (and :class:`radarcal.camera.Camera` ob
 self-contained HTML page; :mod:`radarcal.report.build` turns a bundle's session files into report sections.
 """
 
-from radarcal.report._common import figure_to_png
+from radarcal.report._common import figure_to_png, show
 from radarcal.report.field import (
     camera_position_on_field,
     error_over_time_figure,
@@ -40,6 +40,7 @@ from radarcal.report.lidar_camera import (
 
 __all__ = [
     "figure_to_png",
+    "show",
     "Section",
     "Table",
     "render_html",

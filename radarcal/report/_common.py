@@ -7,7 +7,7 @@ import io
 
 import numpy as np
 
-__all__ = ["new_figure", "figure_to_png", "auto_arrow_scale", "image_extent", "show_image"]
+__all__ = ["new_figure", "figure_to_png", "auto_arrow_scale", "image_extent", "show_image", "show"]
 
 
 def new_figure(width_in: float = 7.0, height_in: float = 4.5, nrows: int = 1, ncols: int = 1, **subplot_kw):
@@ -57,3 +57,12 @@ def show_image(ax, image_size: tuple[int, int], image: np.ndarray | None = None,
     ax.set_aspect("equal")
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
+
+
+def show(fig, dpi: int = 96):
+    """Display a figure in a Jupyter notebook as an ``image/png`` output (independent of the matplotlib backend,
+    so it works headless with ``MPLBACKEND=Agg``). Returns the figure."""
+    from IPython.display import Image, display
+
+    display(Image(data=figure_to_png(fig, dpi=dpi), format="png"))
+    return fig
