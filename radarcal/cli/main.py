@@ -8,7 +8,7 @@ import sys
 import click
 import typer
 
-from radarcal.cli import bundle_cmd
+from radarcal.cli import bundle_cmd, intrinsics_cmd
 from radarcal.cli import report_cmd
 from radarcal.errors import InputError
 
@@ -22,6 +22,7 @@ def _root(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on 
 
 
 app.add_typer(bundle_cmd.app, name="bundle")
+app.command("intrinsics")(intrinsics_cmd.intrinsics)
 app.command("report")(report_cmd.report)
 
 # `radarcal synth <scene>`: ground-truth scene generators (one module per scene registers its command here)

@@ -1,0 +1,286 @@
+"""``radarcal intrinsics``: chessboard / ChArUco intrinsics (and stereo extrinsics) into the bundle.
+
+Parse → detect (parallel) → :func:`radarcal.intrinsics.pipeline.run_intrinsics` → bundle + session → print.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
+from radarcal.cli.common import BundleOpt, JsonOpt, command_line, emit, err_console
+from radarcal.errors import InputError
+from radarcal.intrinsics.collect import ViewInput, decide_layout, detect_files, diagnose, expand_sources, sample_video
+from radarcal.intrinsics.detect import BoardSpec, normalise_order, object_points
+from radarcal.intrinsics.pipeline import IntrinsicsResult, NotEnoughViews, run_intrinsics
+from radarcal.intrinsics.select import DESCRIPTOR_NAMES
+from radarcal.intrinsics.solve import MODELS, SolveError
+from radarcal.intrinsics.stereo import StereoResult, pair_by_name, stereo_calibrate
+
+__all__ = ["intrinsics"]
+
+
+def _collect(sources: list[str], board: BoardSpec, workers: int, label: str) -> tuple[list[ViewInput], BoardSpec, dict, list[Path]]:
+    images, videos = expand_sources(sources)
+    board, layout_info = decide_layout(images, board)
+    views: list[ViewInput] = []
+    if images:
+        if err_console.is_terminal:
+            from rich.progress import Progress
+
+            with Progress(console=err_console, transient=True) as prog:
+                task = prog.add_task(f"detecting {label} ({len(images)} images, {workers} workers)", total=len(images))
+                views += detect_files(images, board, workers, lambda k, n: prog.update(task, completed=k))
+        else:
+            views += detect_files(images, board, workers)
+    for v in videos:
+        err_console.print(f"sampling frames of {v} ...") if err_console.is_terminal else None
+        views += sample_video(v, board, workers=workers)
+    return views, board, layout_info, images + videos
+
+
+def _solve(views: list[ViewInput], board: BoardSpec, files: list[Path], model: str, crossval: bool, novelty: float, k_sigma: float) -> IntrinsicsResult:
+    names = [v.name for v in views]
+    dets = [v.detection for v in views]
+    errs = [v.error for v in views]
+    try:
+        return run_intrinsics(names, dets, board, errs, model=model, crossval=crossval, novelty=novelty, k_sigma=k_sigma)
+    except NotEnoughViews as e:
+        n_board = sum(1 for d in dets if d is not None and d.ok)
+        detail = "; ".join(sorted({(v.error or (v.detection.reason if v.detection else "")) for v in views if not (v.detection and v.detection.ok)} - {""}))[:300]
+        if n_board == 0:
+            hint = diagnose(files, board) if files else None
+            kind = "chessboard" if board.kind == "chessboard" else "ChArUco board"
+            what = f"{board.cols}x{board.rows} {kind}"
+            msg = f"no {what} found in any of {len(views)} inputs" + (f": {hint}" if hint else f" ({detail})" if detail else "")
+            raise InputError(files[0].parent if files else "SOURCE", msg) from None
+        raise InputError(files[0].parent if files else "SOURCE", f"{e}; rejected: {detail}") from None
+    except SolveError as e:
+        raise InputError(files[0].parent if files else "SOURCE", str(e)) from None
+
+
+def _summary(name: str, res: IntrinsicsResult, layout_info: dict) -> dict:
+    cal = res.calibration
+    cam = cal.camera
+    s = {
+        "camera": name,
+        "model": cal.model,
+        "image_size": list(cam.image_size),
+        "K": cam.K,
+        "dist": cam.dist,
+        "rms_px": cal.rms_px,
+        "noise_px": cal.noise_px,
+        "sigma": cal.sigma,
+        "views_total": len(res.names),
+        "views_used": int(cal.view_used.sum()),
+        "corners_dropped": cal.dropped_corners,
+        "rejected": {n: st for n, st in zip(res.names, res.status) if st != "used"},
+        "coverage": {**{k: round(v, 3) for k, v in res.coverage.progress.items()}, "image_grid": round(res.coverage.grid_fraction, 3)},
+        "uncertainty": {"centre_px": res.uncertainty.at_centre(), "median_px": float(np.nanmedian(res.uncertainty.sigma_px)), "valid_fraction": res.uncertainty.valid_fraction, "threshold_px": res.uncertainty.threshold_px},
+        "crossval": res.crossval.summary() if res.crossval else None,
+        "model_choice": {"model": res.model_choice.model, "reason": res.model_choice.reason, "table": res.model_choice.table} if res.model_choice else None,
+        "warnings": res.warnings,
+    }
+    if layout_info:
+        s["charuco_layout"] = {"legacy": layout_info.get("legacy"), "corners_new_layout": layout_info.get("corners_new_layout"), "corners_legacy_layout": layout_info.get("corners_legacy_layout")}
+    return s
+
+
+def _session_arrays(res: IntrinsicsResult) -> dict:
+    cal = res.calibration
+    det = [res.detections[i] for i in res.view_index]
+    obj = object_points(res.board)
+    a = {
+        "names": np.array(res.names, dtype=str),
+        "status": np.array(res.status, dtype=str),
+        "view_index": np.array(res.view_index, int),
+        "corner_view": np.concatenate([np.full(len(d.ids), k) for k, d in enumerate(det)]),
+        "corner_ids": np.concatenate([d.ids for d in det]),
+        "corners_uv": np.concatenate([d.uv for d in det]),
+        "object_points": np.concatenate([obj[d.ids] for d in det]),
+        "residuals": np.concatenate(cal.residuals),
+        "inliers": np.concatenate(cal.inliers),
+        "rvecs": cal.rvecs,
+        "tvecs": cal.tvecs,
+        "view_used": cal.view_used,
+        "view_rms_px": cal.view_rms(),
+        "view_edge_width_px": np.array([d.edge_width_px for d in det]),
+        "descriptors": res.descriptors,
+        "K": cal.camera.K,
+        "dist": cal.camera.dist,
+        "image_size": np.array(cal.camera.image_size),
+        "param_names": np.array(cal.param_names, dtype=str),
+        "cov_intrinsics": cal.cov,
+        "coverage_grid": res.coverage.grid,
+        "uncertainty_u": res.uncertainty.u,
+        "uncertainty_v": res.uncertainty.v,
+        "uncertainty_sigma_px": res.uncertainty.sigma_px,
+        "uncertainty_valid": res.uncertainty.valid,
+    }
+    if res.crossval is not None:
+        a.update({"crossval_u": res.crossval.u, "crossval_v": res.crossval.v, "crossval_diff_px": res.crossval.diff_px, "crossval_sigma_px": res.crossval.sigma_px})
+    return a
+
+
+def _bar(p: float, width: int = 20) -> str:
+    n = int(round(max(0.0, min(1.0, p)) * width))
+    return "#" * n + "." * (width - n)
+
+
+def _human_camera(s: dict) -> None:
+    K = np.asarray(s["K"])
+    sg = s["sigma"]
+    typer.echo(f"camera {s['camera']}: {s['model']} {s['image_size'][0]}x{s['image_size'][1]}  RMS {s['rms_px']:.3f} px  (noise σ {s['noise_px']:.3f} px/coord)")
+    typer.echo(f"  fx = {K[0, 0]:.3f} ± {sg['fx']:.3f}   fy = {K[1, 1]:.3f} ± {sg['fy']:.3f}")
+    typer.echo(f"  cx = {K[0, 2]:.3f} ± {sg['cx']:.3f}   cy = {K[1, 2]:.3f} ± {sg['cy']:.3f}")
+    dn = [k for k in sg if k not in ("fx", "fy", "cx", "cy")]
+    typer.echo("  dist: " + "  ".join(f"{n}={v:.5g}±{sg[n]:.2g}" for n, v in zip(dn, s["dist"])))
+    typer.echo(f"  views used {s['views_used']}/{s['views_total']}, corners dropped as outliers: {s['corners_dropped']}")
+    for n, why in s["rejected"].items():
+        typer.echo(f"    rejected {n}: {why}")
+    typer.echo("  coverage: " + "  ".join(f"{k} [{_bar(s['coverage'][k], 10)}] {s['coverage'][k]:.2f}" for k in DESCRIPTOR_NAMES) + f"  image {s['coverage']['image_grid']:.0%}")
+    u = s["uncertainty"]
+    typer.echo(f"  projection σ: {u['centre_px']:.3f} px at the centre, median {u['median_px']:.3f} px; valid (σ < {u['threshold_px']:.3f} px) over {u['valid_fraction']:.0%} of the image")
+    if s.get("charuco_layout"):
+        c = s["charuco_layout"]
+        typer.echo(f"  ChArUco layout: {'legacy (pre-4.6)' if c['legacy'] else 'new (OpenCV >= 4.6)'} (corners found: new {c['corners_new_layout']}, legacy {c['corners_legacy_layout']})")
+    if s.get("model_choice"):
+        mc = s["model_choice"]
+        typer.echo(f"  model auto -> {mc['model']}: {mc['reason']}")
+        for r in mc["table"]:
+            if "error" in r:
+                typer.echo(f"    {r['model']:9s} failed: {r['error']}")
+            else:
+                typer.echo(f"    {r['model']:9s} RMS {r.get('rms_px', float('nan')):.3f} px  halves differ {r.get('diff_median_px', float('nan')):.3f} px vs σ {r.get('sigma_median_px', float('nan')):.3f} px  {'consistent' if r.get('consistent') else 'INCONSISTENT'}")
+    elif s.get("crossval"):
+        c = s["crossval"]
+        typer.echo(f"  cross-validation (two halves): differ {c['diff_median_px']:.3f} px median (max {c['diff_max_px']:.2f}) vs σ {c['sigma_median_px']:.3f} px -> {'consistent' if c['consistent'] else 'INCONSISTENT'}")
+    for w in s["warnings"]:
+        typer.echo(f"  warning: {w}")
+
+
+def _stereo(res0: IntrinsicsResult, res1: IntrinsicsResult, board: BoardSpec) -> tuple[StereoResult, list[tuple[str, str]]]:
+    used0 = {res0.names[i]: k for k, i in enumerate(res0.view_index) if res0.calibration.view_used[k]}
+    used1 = {res1.names[i]: k for k, i in enumerate(res1.view_index) if res1.calibration.view_used[k]}
+    pairs = pair_by_name(res0.names, res1.names)
+    obj_all = object_points(board)
+    objs, q0, q1, names = [], [], [], []
+    for i, j in pairs:
+        a, b = res0.names[i], res1.names[j]
+        if a not in used0 or b not in used1:
+            continue
+        d0, d1 = res0.detections[i], res1.detections[j]
+        if board.kind == "chessboard":
+            uv1 = normalise_order(d1.uv, board.grid_shape, reference=d0.uv)
+            objs.append(obj_all)
+            q0.append(d0.uv)
+            q1.append(uv1)
+        else:
+            common, i0, i1 = np.intersect1d(d0.ids, d1.ids, return_indices=True)
+            if len(common) < 6:
+                continue
+            objs.append(obj_all[common])
+            q0.append(d0.uv[i0])
+            q1.append(d1.uv[i1])
+        names.append((a, b))
+    if not names:
+        raise InputError("--right", "no synchronised pair has the board in both images (pairing is by the number in the file names)")
+    return stereo_calibrate(res0.camera, res1.camera, objs, q0, q1), names
+
+
+def intrinsics(
+    sources: list[str] = typer.Argument(..., help="Images, folders, globs or video files (the left camera with --right)."),
+    board: str = typer.Option("chessboard", "--board", help="chessboard | charuco"),
+    cols: int = typer.Option(..., "--cols", help="Chessboard: inner corners per row. ChArUco: squares per row."),
+    rows: int = typer.Option(..., "--rows", help="Chessboard: inner corners per column. ChArUco: squares per column."),
+    square: float = typer.Option(..., "--square", help="Square size (m)."),
+    marker: float = typer.Option(0.0, "--marker", help="ChArUco marker size (m)."),
+    dictionary: str = typer.Option("DICT_4X4_1000", "--dict", help="ChArUco ArUco dictionary."),
+    layout: str = typer.Option("auto", "--layout", help="ChArUco layout: auto | new | legacy."),
+    camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
+    bundle: Path = BundleOpt,
+    model: str = typer.Option("pinhole5", "--model", help="auto | pinhole5 | pinhole8 (rational) | fisheye (equidistant)."),
+    stereo: bool = typer.Option(False, "--stereo", help="Stereo: SOURCE are the left images, --right the right ones."),
+    right: list[str] = typer.Option(None, "--right", help="Right-camera images/folder/glob (repeatable); implies --stereo."),
+    right_camera: str = typer.Option("cam1", "--right-camera", help="Name of the right camera in the bundle."),
+    workers: int = typer.Option(2, "--workers", help="Detection processes."),
+    novelty: float = typer.Option(0.0, "--novelty", help="ROS novelty gate for still images (L1 in X/Y/Size/Skew; 0 = keep all). Videos always use 0.2."),
+    no_crossval: bool = typer.Option(False, "--no-crossval", help="Skip the split-halves cross-validation."),
+    k_sigma: float = typer.Option(4.0, "--k-sigma", help="Corner outlier threshold in σ."),
+    as_json: bool = JsonOpt,
+) -> None:
+    """Calibrate camera intrinsics from chessboard / ChArUco views (and T_cam1_cam0 with --right)."""
+    spec = BoardSpec(board, cols, rows, square, marker, dictionary, {"auto": None, "new": False, "legacy": True}.get(layout, "bad"))  # type: ignore[arg-type]
+    if spec.legacy == "bad":
+        raise InputError("--layout", f"expected auto, new or legacy, got {layout!r}")
+    problem = spec.problem()
+    if problem:
+        raise InputError("--board", problem)
+    if model != "auto" and model not in MODELS:
+        raise InputError("--model", f"expected auto or one of {', '.join(MODELS)}, got {model!r}")
+    if stereo and not right:
+        raise InputError("--stereo", "needs the right camera's images with --right")
+    b = load_or_create_bundle(bundle)  # fail early on a broken bundle
+
+    views0, spec0, layout0, files0 = _collect(sources, spec, workers, camera)
+    res0 = _solve(views0, spec0, files0, model, not no_crossval, novelty, k_sigma)
+    results = [(camera, res0, layout0, files0)]
+    st = None
+    if right:
+        views1, spec1, layout1, files1 = _collect(list(right), spec, workers, right_camera)
+        res1 = _solve(views1, spec1, files1, model, not no_crossval, novelty, k_sigma)
+        results.append((right_camera, res1, layout1, files1))
+        st, pair_names = _stereo(res0, res1, spec0 if spec.kind == "chessboard" else spec0)
+
+    summary = {"bundle": str(bundle), "cameras": []}
+    all_files = [f for _, _, _, fs in results for f in fs]
+    prov = Provenance(command=command_line(), inputs_sha256=hash_inputs(all_files, {"board": spec.__dict__, "model": model, "k_sigma": k_sigma}))
+    for name, res, lay, _files in results:
+        s = _summary(name, res, lay)
+        summary["cameras"].append(s)
+        extra = {
+            "model": res.calibration.model,
+            "noise_px": res.calibration.noise_px,
+            "views_used": int(res.calibration.view_used.sum()),
+            "views_total": len(res.names),
+            "board": {k: v for k, v in res.board.__dict__.items()},
+            "coverage": s["coverage"],
+            "uncertainty": s["uncertainty"],
+        }
+        if res.crossval:
+            extra["crossval"] = {k: v for k, v in res.crossval.summary().items() if k in ("diff_median_px", "sigma_median_px", "ratio_median", "consistent")}
+        b.set_camera(name, res.camera, rms_px=res.calibration.rms_px, sigma=res.calibration.sigma, provenance=prov, extra=extra)
+        save_session(b, f"intrinsics/{name}", _session_arrays(res), {"camera": name, "summary": s, "board": res.board.__dict__})
+    if st is not None:
+        b.set_transform(right_camera, camera, st.T_cam1_cam0, method="intrinsics --right (board pairs, intrinsics fixed)", residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)
+        save_session(
+            b,
+            f"stereo/{camera}_{right_camera}",
+            {
+                "pair_names": np.array(pair_names, dtype=str),
+                "T_cam1_cam0": st.T_cam1_cam0,
+                "rvecs_cam0": st.rvecs_cam0,
+                "tvecs_cam0": st.tvecs_cam0,
+                "residuals0": np.concatenate(st.residuals0),
+                "residuals1": np.concatenate(st.residuals1),
+                "inliers": np.concatenate(st.inliers),
+                "pair_of_corner": np.concatenate([np.full(len(r), k) for k, r in enumerate(st.residuals0)]),
+            },
+            {"camera0": camera, "camera1": right_camera},
+        )
+        summary["stereo"] = {"T": f"T_{right_camera}_{camera}", "T_cam1_cam0": st.T_cam1_cam0, "baseline_m": st.baseline_m, "sigma": st.sigma, "rms_px": st.rms_px, "pairs": st.n_pairs}
+    save_bundle(b)
+
+    def human(s: dict) -> None:
+        for c in s["cameras"]:
+            _human_camera(c)
+        if "stereo" in s:
+            x = s["stereo"]
+            t = np.asarray(x["T_cam1_cam0"])[:3, 3]
+            typer.echo(f"stereo {x['T']}: baseline {x['baseline_m'] * 1000:.3f} ± {x['sigma']['baseline_m'] * 1000:.3f} mm  t = ({t[0]:.5f}, {t[1]:.5f}, {t[2]:.5f}) m  RMS {x['rms_px']:.3f} px over {x['pairs']} pairs")
+        typer.echo(f"written to {s['bundle']}")
+
+    emit(summary, as_json, human)

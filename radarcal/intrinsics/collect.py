@@ -1,0 +1,161 @@
+"""The I/O edge of ``radarcal intrinsics``: expand SOURCE arguments, read images / video frames, and detect the
+board in parallel (``concurrent.futures.ProcessPoolExecutor``). Returns one :class:`ViewInput` per image/frame
+with either a :class:`~radarcal.intrinsics.detect.Detection` or the reason it could not be read."""
+
+from __future__ import annotations
+
+import glob
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable, Iterable
+
+import cv2
+import numpy as np
+
+from radarcal.errors import InputError
+from radarcal.intrinsics.detect import BoardSpec, Detection, choose_charuco_layout, detect_board, diagnose_board_size
+from radarcal.intrinsics.select import novel_mask, view_descriptor
+
+__all__ = ["ViewInput", "IMAGE_EXTS", "VIDEO_EXTS", "expand_sources", "detect_files", "sample_video", "decide_layout", "diagnose"]
+
+IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
+VIDEO_EXTS = {".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg"}
+
+
+@dataclass
+class ViewInput:
+    name: str  # file path, or "video.mp4#frame123"
+    detection: Detection | None  # None when unreadable
+    error: str = ""  # "unreadable: ..." when the file could not be read
+
+
+def expand_sources(sources: Iterable[str]) -> tuple[list[Path], list[Path]]:
+    """SOURCE arguments (files, folders, globs, videos) -> (image files, video files), sorted, de-duplicated.
+    Unknown extensions inside folders are skipped; an explicit file with an unknown extension is treated as an
+    image (and reported unreadable if it is not one). A source matching nothing raises InputError."""
+    images: list[Path] = []
+    videos: list[Path] = []
+    for s in sources:
+        p = Path(s)
+        if p.is_dir():
+            found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_EXTS | VIDEO_EXTS)
+            if not found:
+                raise InputError(p, "folder holds no images or videos")
+        elif p.is_file():
+            found = [p]
+        else:
+            found = sorted(Path(q) for q in glob.glob(s) if Path(q).is_file())
+            if not found:
+                raise InputError(s, "no such file, folder or glob match")
+        for q in found:
+            (videos if q.suffix.lower() in VIDEO_EXTS else images).append(q)
+    seen = set()
+    uniq = lambda xs: [x for x in xs if not (str(x.resolve()) in seen or seen.add(str(x.resolve())))]  # noqa: E731
+    return uniq(images), uniq(videos)
+
+
+def _detect_one(path: str, board: BoardSpec) -> ViewInput:
+    data = np.fromfile(path, dtype=np.uint8) if os.path.isfile(path) else None
+    if data is None:
+        return ViewInput(path, None, "unreadable: file not found")
+    if data.size == 0:
+        return ViewInput(path, None, "unreadable: empty file")
+    gray = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
+    if gray is None or gray.size == 0:
+        return ViewInput(path, None, "unreadable: corrupt or not an image")
+    return ViewInput(path, detect_board(gray, board))
+
+
+def _read_gray(path: Path) -> np.ndarray | None:
+    data = np.fromfile(path, dtype=np.uint8)
+    return cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+
+
+def decide_layout(paths: list[Path], board: BoardSpec, sample: int = 6) -> tuple[BoardSpec, dict]:
+    """For ChArUco with ``legacy=None``: try both layouts on up to ``sample`` evenly spaced images."""
+    if board.kind != "charuco" or board.legacy is not None or not paths:
+        return board, {}
+    idx = np.unique(np.linspace(0, len(paths) - 1, min(sample, len(paths))).round().astype(int))
+    grays = [g for g in (_read_gray(paths[i]) for i in idx) if g is not None]
+    legacy, counts = choose_charuco_layout(grays, board)
+    info = {"legacy": legacy, "corners_new_layout": counts[False], "corners_legacy_layout": counts[True]}
+    return (board if legacy is None else replace(board, legacy=legacy)), info
+
+
+def detect_files(paths: list[Path], board: BoardSpec, workers: int = 2, on_done: Callable[[int, int], None] | None = None) -> list[ViewInput]:
+    """Detect ``board`` in every file, ``workers`` processes in parallel (1 = in this process). Input order kept."""
+    names = [str(p) for p in paths]
+    out: list[ViewInput | None] = [None] * len(names)
+    if workers <= 1 or len(names) < 2:
+        for i, n in enumerate(names):
+            out[i] = _detect_one(n, board)
+            if on_done:
+                on_done(i + 1, len(names))
+        return out  # type: ignore[return-value]
+    with ProcessPoolExecutor(max_workers=workers) as ex:
+        futs = {ex.submit(_detect_one, n, board): i for i, n in enumerate(names)}
+        for k, f in enumerate(as_completed(futs), 1):
+            i = futs[f]
+            try:
+                out[i] = f.result()
+            except Exception as e:  # noqa: BLE001 - one bad file must not end the run
+                out[i] = ViewInput(names[i], None, f"unreadable: {e.__class__.__name__}: {e}")
+            if on_done:
+                on_done(k, len(names))
+    return out  # type: ignore[return-value]
+
+
+def sample_video(path: Path, board: BoardSpec, max_candidates: int = 150, novelty: float = 0.2, sharpness_limit_px: float = 4.0, workers: int = 2) -> list[ViewInput]:
+    """Frames of a video: ``max_candidates`` evenly spaced frames are detected (in parallel batches); frames
+    that are blurred (edge width > ``sharpness_limit_px``) or not novel (ROS gate, L1 > ``novelty`` in X/Y/Size/
+    Skew) are dropped. Returns the kept frames as views named ``<video>#frame<N>``."""
+    cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        raise InputError(path, "cannot open video (corrupt or unsupported codec)")
+    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)
+    step = max(1, n // max_candidates) if n > 0 else 1
+    frames: list[tuple[int, np.ndarray]] = []
+    i = 0
+    while True:
+        ok = cap.grab()
+        if not ok:
+            break
+        if i % step == 0:
+            ok, img = cap.retrieve()
+            if ok and img is not None:
+                frames.append((i, cv2.cvtColor(img, cv2.COLOR_BGR2GRAY) if img.ndim == 3 else img))
+        i += 1
+        if len(frames) >= max_candidates:
+            break
+    cap.release()
+    if not frames:
+        raise InputError(path, "no frames could be decoded")
+    if workers > 1 and len(frames) > 1:
+        with ProcessPoolExecutor(max_workers=workers) as ex:
+            dets = list(ex.map(detect_board, [f for _, f in frames], [board] * len(frames), chunksize=4))
+    else:
+        dets = [detect_board(f, board) for _, f in frames]
+    views = []
+    descs = []
+    for (k, _f), d in zip(frames, dets):
+        if d.ok and not (d.edge_width_px > sharpness_limit_px):
+            views.append(ViewInput(f"{path}#frame{k}", d))
+            descs.append(view_descriptor(d.uv, d.ids, board.grid_shape, d.image_size))
+    if not views:
+        return []
+    keep = novel_mask(np.array(descs), novelty)
+    return [v for v, k in zip(views, keep) if k]
+
+
+def diagnose(paths: list[Path], board: BoardSpec, sample: int = 3) -> str | None:
+    """A hint when no image shows the given board (see :func:`detect.diagnose_board_size`)."""
+    for p in paths[:sample]:
+        g = _read_gray(p)
+        if g is None:
+            continue
+        hint = diagnose_board_size(g, board)
+        if hint:
+            return f"{hint} (in {p.name})"
+    return None
