@@ -30,7 +30,7 @@ from radarcal.report import intrinsics as ri
 from radarcal.report import lidar_camera as rl
 from radarcal.report.html import Section, Table
 
-__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args"]
+__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data"]
 
 
 @dataclass
@@ -218,83 +218,116 @@ def _overview(bundle: Bundle, skip_cameras: set[str] = frozenset()) -> Section:
 
 
 # --- sections ----------------------------------------------------------------------------------------------------------
-def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dict, entry=None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
-    """Every intrinsics figure the session allows."""
-    sec = Section(f"Intrinsics: {camera_name}")
-    add = _Adder(sec, skipped if skipped is not None else [])
-    size = camera.image_size
+@dataclass
+class IntrinsicsData:
+    """An intrinsics session normalised for the figures (any field may be None when the session lacks it)."""
+
+    camera: Camera
+    uv: np.ndarray | None = None  # (N,2) observed corners
+    residual: np.ndarray | None = None  # (N,2) observed − projected, px
+    corner_view: np.ndarray | None = None  # (N,) index into view_names
+    corner_outlier: np.ndarray | None = None  # (N,) bool
+    view_names: list[str] = field(default_factory=list)
+    view_error: np.ndarray | None = None  # (V,) px
+    view_error_label: str = "mean |residual| (px)"
+    view_outlier: np.ndarray | None = None  # (V,) bool
+    rejected: list[list[str]] = field(default_factory=list)  # [input, reason] of inputs never solved
+    noise_px: float | None = None
+    rms_px: float | None = None
+    sigma_u: np.ndarray | None = None
+    sigma_v: np.ndarray | None = None
+    sigma_px: np.ndarray | None = None
+    valid_threshold_px: float = 1.0
+    cv_u: np.ndarray | None = None
+    cv_v: np.ndarray | None = None
+    cv_diff_px: np.ndarray | None = None
+    cv_sigma_px: np.ndarray | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    def inlier_residuals(self) -> np.ndarray | None:
+        """Residuals of corners that are neither outliers nor in an outlier view."""
+        if self.residual is None:
+            return None
+        r = np.asarray(self.residual, float).reshape(-1, 2)
+        bad = np.zeros(len(r), bool) if self.corner_outlier is None else np.asarray(self.corner_outlier, bool).ravel()
+        if self.view_outlier is not None and self.corner_view is not None:
+            vo = np.asarray(self.view_outlier, bool).ravel()
+            bad = bad | vo[np.clip(np.asarray(self.corner_view, int).ravel(), 0, vo.size - 1)]
+        return r[~bad]
+
+
+def intrinsics_data(arrays: dict, meta: dict, camera: Camera, rms_px: float | None = None) -> IntrinsicsData:
+    """Normalise an ``intrinsics/<camera>`` session (the layout ``radarcal intrinsics`` writes, or the generic
+    names of ``_ALIASES``). ``camera`` is used when the session does not carry its own K/dist/image_size."""
+    summary = meta.get("summary") if isinstance(meta.get("summary"), dict) else {}
     uv = _get(arrays, meta, "uv")
     res = _get(arrays, meta, "residual")
     if res is None and uv is not None and _get(arrays, meta, "uv_proj") is not None:
         res = np.asarray(uv, float) - np.asarray(_get(arrays, meta, "uv_proj"), float)
-    summary = meta.get("summary") if isinstance(meta.get("summary"), dict) else {}
-    verr_label = "mean |residual| (px)"
+    d = IntrinsicsData(camera=camera, uv=uv, residual=res)
     if "corner_view" in arrays:
         # `radarcal intrinsics` layout: names/status of every input; view_index = the solved views' input index;
         # corner_view = solved-view index per corner; inliers per corner; view_used / view_rms_px per solved view
-        vidx = arrays["corner_view"]
+        d.corner_view = np.asarray(arrays["corner_view"], int)
         all_names = _str_list(arrays.get("names"))
-        vi = np.asarray(arrays.get("view_index", np.arange(int(np.max(vidx, initial=-1)) + 1)), int).ravel()
-        vnames = [all_names[i] if 0 <= i < len(all_names) else f"view {i}" for i in vi]
-        verr = arrays.get("view_rms_px")
-        verr_label = "RMS of inlier residuals (px)"
-        vout = ~np.asarray(arrays["view_used"], bool) if "view_used" in arrays else None
-        pout = ~np.asarray(arrays["inliers"], bool) if "inliers" in arrays else None
+        vi = np.asarray(arrays.get("view_index", np.arange(int(np.max(d.corner_view, initial=-1)) + 1)), int).ravel()
+        d.view_names = [all_names[i] if 0 <= i < len(all_names) else f"view {i}" for i in vi]
+        d.view_error = arrays.get("view_rms_px")
+        d.view_error_label = "RMS of inlier residuals (px)"
+        d.view_outlier = ~np.asarray(arrays["view_used"], bool) if "view_used" in arrays else None
+        d.corner_outlier = ~np.asarray(arrays["inliers"], bool) if "inliers" in arrays else None
         status = _str_list(arrays.get("status"))
-        rejected = [[n, st] for n, st in zip(all_names, status) if st != "used"]
+        d.rejected = [[n, st] for n, st in zip(all_names, status) if st != "used"]
     else:
         vidx = _get(arrays, meta, "view_index")
-        vnames = _str_list(_get(arrays, meta, "view_names"))
-        verr = _get(arrays, meta, "view_error")
-        vout = _get(arrays, meta, "view_outlier")
-        pout = _get(arrays, meta, "point_outlier")
-        rejected = []
-    if verr is None and res is not None and vidx is not None:
-        vidx_a = np.asarray(vidx, int).ravel()
-        n_views = max(len(vnames), int(vidx_a.max()) + 1 if vidx_a.size else 0)
+        d.corner_view = None if vidx is None else np.asarray(vidx, int)
+        d.view_names = _str_list(_get(arrays, meta, "view_names"))
+        d.view_error = _get(arrays, meta, "view_error")
+        d.view_outlier = _get(arrays, meta, "view_outlier")
+        d.corner_outlier = _get(arrays, meta, "point_outlier")
+    if d.view_error is None and res is not None and d.corner_view is not None:
+        cv = d.corner_view.ravel()
+        n_views = max(len(d.view_names), int(cv.max()) + 1 if cv.size else 0)
         mag = np.linalg.norm(np.asarray(res, float).reshape(-1, 2), axis=1)
-        verr = np.bincount(vidx_a, mag, n_views) / np.maximum(np.bincount(vidx_a, None, n_views), 1)
-    if verr is not None and len(vnames) != np.size(verr):
-        vnames = [f"view {i}" for i in range(np.size(verr))]
+        d.view_error = np.bincount(cv, mag, n_views) / np.maximum(np.bincount(cv, None, n_views), 1)
+    if d.view_error is not None and len(d.view_names) != np.size(d.view_error):
+        d.view_names = [f"view {i}" for i in range(np.size(d.view_error))]
     if all(k in arrays for k in ("K", "dist", "image_size")):  # the camera this session was solved for
         model = "fisheye" if str(summary.get("model", meta.get("model", ""))).startswith("fisheye") else camera.model
         try:
-            camera = Camera(tuple(int(x) for x in np.asarray(arrays["image_size"]).ravel()[:2]), arrays["K"], arrays["dist"], model)
-            size = camera.image_size
+            d.camera = Camera(tuple(int(x) for x in np.asarray(arrays["image_size"]).ravel()[:2]), arrays["K"], arrays["dist"], model)
         except ValueError:
             pass
-    noise = meta.get("noise_sigma_px", meta.get("sigma_px", meta.get("expected_noise_px", summary.get("noise_px"))))
-    rms = meta.get("rms_px", summary.get("rms_px", entry.rms_px if entry is not None else None))
+    d.noise_px = meta.get("noise_sigma_px", meta.get("sigma_px", meta.get("expected_noise_px", summary.get("noise_px"))))
+    d.rms_px = meta.get("rms_px", summary.get("rms_px", rms_px))
+    d.sigma_u, d.sigma_v, d.sigma_px = _get(arrays, meta, "sigma_u"), _get(arrays, meta, "sigma_v"), _get(arrays, meta, "sigma_map")
+    unc = summary.get("uncertainty") if isinstance(summary.get("uncertainty"), dict) else {}
+    d.valid_threshold_px = float(meta.get("valid_threshold_px", meta.get("uncertainty_threshold_px", unc.get("threshold_px", d.noise_px if d.noise_px else 1.0))))
+    d.cv_u, d.cv_v, d.cv_diff_px, d.cv_sigma_px = _get(arrays, meta, "cv_u"), _get(arrays, meta, "cv_v"), _get(arrays, meta, "cv_diff"), _get(arrays, meta, "cv_sigma")
+    d.warnings = [str(w) for w in summary.get("warnings") or []]
+    return d
+
+
+def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dict, entry=None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
+    """Every intrinsics figure the session allows."""
+    sec = Section(f"Intrinsics: {camera_name}")
+    add = _Adder(sec, skipped if skipped is not None else [])
+    d = intrinsics_data(arrays, meta, camera, entry.rms_px if entry is not None else None)
+    size = d.camera.image_size
     if entry is not None:
         sec.add(_camera_param_table(camera_name, entry))
-    if rejected:
-        sec.add(Table(["input", "why not used"], rejected, caption=f"{len(rejected)} input(s) not used"))
-    for w in summary.get("warnings") or []:
+    if d.rejected:
+        sec.add(Table(["input", "why not used"], d.rejected, caption=f"{len(d.rejected)} input(s) not used"))
+    for w in d.warnings:
         sec.add(f"warning: {w}")
-    add("per-view error", lambda: ri.per_view_error_figure(vnames, verr, vout, meta.get("view_threshold_px"), rms, ylabel=verr_label), {"per-view errors": verr})
-    add("residual vectors", lambda: ri.residual_vectors_figure(uv, res, size, image=image, outlier=pout), {"corner pixels": uv, "residuals": res})
-    excluded = None if pout is None else np.asarray(pout, bool).ravel()
-    if vout is not None and vidx is not None and res is not None:
-        vo = np.asarray(vout, bool).ravel()
-        in_bad_view = vo[np.clip(np.asarray(vidx, int).ravel(), 0, vo.size - 1)]
-        excluded = in_bad_view if excluded is None else (excluded | in_bad_view)
-    add("residual histogram", lambda: ri.residual_histogram_figure(_inliers(res, excluded), noise, title="Residuals (inliers) against the expected noise"), {"residuals": res})
-    add("coverage", lambda: ri.coverage_figure(uv, size), {"corner pixels": uv})
-    su, sv, sm = _get(arrays, meta, "sigma_u"), _get(arrays, meta, "sigma_v"), _get(arrays, meta, "sigma_map")
-    unc = summary.get("uncertainty") if isinstance(summary.get("uncertainty"), dict) else {}
-    thr = meta.get("valid_threshold_px", meta.get("uncertainty_threshold_px", unc.get("threshold_px", noise if noise else 1.0)))
-    add("projection uncertainty", lambda: ri.uncertainty_map_figure(su, sv, sm, size, float(thr), uv), {"uncertainty grid": sm, "grid u": su, "grid v": sv})
-    add("distortion field", lambda: ri.distortion_figure(camera))
-    cu, cv, cd = _get(arrays, meta, "cv_u"), _get(arrays, meta, "cv_v"), _get(arrays, meta, "cv_diff")
-    add("cross-validation", lambda: ri.crossval_difference_figure(cu, cv, cd, size, _get(arrays, meta, "cv_sigma")), {"cross-validation difference": cd, "grid u": cu, "grid v": cv})
+    add("per-view error", lambda: ri.per_view_error_figure(d.view_names, d.view_error, d.view_outlier, meta.get("view_threshold_px"), d.rms_px, ylabel=d.view_error_label), {"per-view errors": d.view_error})
+    add("residual vectors", lambda: ri.residual_vectors_figure(d.uv, d.residual, size, image=image, outlier=d.corner_outlier), {"corner pixels": d.uv, "residuals": d.residual})
+    add("residual histogram", lambda: ri.residual_histogram_figure(d.inlier_residuals(), d.noise_px, title="Residuals (inliers) against the expected noise"), {"residuals": d.residual})
+    add("coverage", lambda: ri.coverage_figure(d.uv, size), {"corner pixels": d.uv})
+    add("projection uncertainty", lambda: ri.uncertainty_map_figure(d.sigma_u, d.sigma_v, d.sigma_px, size, d.valid_threshold_px, d.uv), {"uncertainty grid": d.sigma_px, "grid u": d.sigma_u, "grid v": d.sigma_v})
+    add("distortion field", lambda: ri.distortion_figure(d.camera))
+    add("cross-validation", lambda: ri.crossval_difference_figure(d.cv_u, d.cv_v, d.cv_diff_px, size, d.cv_sigma_px), {"cross-validation difference": d.cv_diff_px, "grid u": d.cv_u, "grid v": d.cv_v})
     return sec
-
-
-def _inliers(res, out):
-    r = np.asarray(res, float).reshape(-1, 2)
-    if out is None:
-        return r
-    return r[~np.asarray(out, bool).ravel()]
 
 
 def lidar_camera_section(key: str, camera: Camera, arrays: dict, meta: dict, T_final_bundle: np.ndarray | None = None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
