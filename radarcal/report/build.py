@@ -275,6 +275,14 @@ def intrinsics_data(arrays: dict, meta: dict, camera: Camera, rms_px: float | No
         d.view_error = arrays.get("view_rms_px")
         d.view_error_label = "RMS of inlier residuals (px)"
         d.view_outlier = ~np.asarray(arrays["view_used"], bool) if "view_used" in arrays else None
+        if d.view_error is not None and d.view_outlier is not None and res is not None and d.view_outlier.any():
+            # a rejected view's inlier RMS hides why it was rejected: show the RMS over all its corners
+            r2 = np.sum(np.asarray(res, float).reshape(-1, 2) ** 2, axis=1)
+            ok = np.isfinite(r2)
+            n = d.view_outlier.size
+            rms_all = np.sqrt(np.bincount(d.corner_view[ok], r2[ok], n) / np.maximum(np.bincount(d.corner_view[ok], None, n), 1))
+            d.view_error = np.where(d.view_outlier, rms_all, np.asarray(d.view_error, float))
+            d.view_error_label = "RMS residual (px; rejected views: all corners)"
         d.corner_outlier = ~np.asarray(arrays["inliers"], bool) if "inliers" in arrays else None
         status = _str_list(arrays.get("status"))
         d.rejected = [[n, st] for n, st in zip(all_names, status) if st != "used"]
