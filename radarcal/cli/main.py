@@ -8,7 +8,7 @@ import sys
 import click
 import typer
 
-from radarcal.cli import bundle_cmd, intrinsics_cmd
+from radarcal.cli import bundle_cmd, field_pnp_cmd, intrinsics_cmd, synth_field_cmd
 from radarcal.cli import report_cmd
 from radarcal.errors import InputError
 
@@ -23,11 +23,13 @@ def _root(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on 
 
 app.add_typer(bundle_cmd.app, name="bundle")
 app.command("intrinsics")(intrinsics_cmd.intrinsics)
+app.command("field-pnp")(field_pnp_cmd.field_pnp)
 app.command("report")(report_cmd.report)
 
 # `radarcal synth <scene>`: ground-truth scene generators (one module per scene registers its command here)
 synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
 app.add_typer(synth_app, name="synth")
+synth_app.command("field")(synth_field_cmd.synth_field)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,1 @@
+"""Ground-truth scene generators (``radarcal synth <scene>``): data in users' formats plus ``truth.json``."""
