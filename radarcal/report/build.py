@@ -30,7 +30,7 @@ from radarcal.report import intrinsics as ri
 from radarcal.report import lidar_camera as rl
 from radarcal.report.html import Section, Table
 
-__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data"]
+__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data"]
 
 
 @dataclass
@@ -380,19 +380,65 @@ def field_drawing_args(field_model: Any) -> dict:
     return {"size": size, "landmarks": lms, "outline": outline}
 
 
+@dataclass
+class FieldData:
+    """A ``field_pnp/<camera>`` session normalised for the figures."""
+
+    names: list[str] = field(default_factory=list)
+    uv_picked: np.ndarray | None = None
+    uv_reprojected: np.ndarray | None = None
+    pick_outlier: np.ndarray | None = None
+    T_cam_field: np.ndarray | None = None
+    grid_x: np.ndarray | None = None
+    grid_y: np.ndarray | None = None
+    error_maps: dict[str, np.ndarray] = field(default_factory=dict)  # label -> (ny, nx) 1σ error (m)
+    rms_px: float | None = None
+    depth_source: str | None = None
+    warnings: list[str] = field(default_factory=list)
+
+
+def field_data(arrays: dict, meta: dict, T_cam_field: np.ndarray | None = None) -> FieldData:
+    """Normalise a field-pnp session (the layout ``radarcal field-pnp`` writes, or the generic names)."""
+    d = FieldData()
+    d.names = _str_list(_get(arrays, meta, "pick_names"))
+    d.uv_picked = arrays.get("uv") if "residuals_px" in arrays and "uv" in arrays else _get(arrays, meta, "uv_picked")
+    d.uv_reprojected = _get(arrays, meta, "uv_reproj")
+    if d.uv_reprojected is None and d.uv_picked is not None and "residuals_px" in arrays:
+        d.uv_reprojected = np.asarray(d.uv_picked, float) - np.asarray(arrays["residuals_px"], float)  # residual = picked − projected
+    if "inliers" in arrays:
+        d.pick_outlier = ~np.asarray(arrays["inliers"], bool)
+    else:
+        d.pick_outlier = _get(arrays, meta, "pick_outlier")
+    T = _get(arrays, meta, "T_cam_field")
+    d.T_cam_field = np.asarray(T, float) if T is not None else T_cam_field
+    d.grid_x, d.grid_y = _get(arrays, meta, "err_x"), _get(arrays, meta, "err_y")
+    if "sigma_lidar" in arrays:
+        d.error_maps["depth from the LiDAR"] = arrays["sigma_lidar"]
+    if "sigma_ground" in arrays:
+        d.error_maps["ground-plane fallback (no depth)"] = arrays["sigma_ground"]
+    if not d.error_maps and _get(arrays, meta, "err_sigma") is not None:
+        d.error_maps["expected"] = _get(arrays, meta, "err_sigma")
+    d.rms_px = meta.get("rms_px")
+    d.depth_source = meta.get("depth_source")
+    d.warnings = [str(w) for w in meta.get("warnings") or []]
+    return d
+
+
 def field_section(camera_name: str, camera: Camera | None, arrays: dict, meta: dict, field_model: Any, T_cam_field: np.ndarray | None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
     sec = Section(f"Field pose: {camera_name}")
     add = _Adder(sec, skipped if skipped is not None else [])
-    fa = field_drawing_args(field_model if field_model is not None else meta.get("field"))
-    names = _str_list(_get(arrays, meta, "pick_names"))
-    T = _get(arrays, meta, "T_cam_field")
-    T = np.asarray(T, float) if T is not None else T_cam_field
-    add("field and landmarks", lambda: rf.field_landmarks_figure(fa["size"], fa["landmarks"], T, names, fa["outline"]), {"field model": fa or None})
-    a, b = _get(arrays, meta, "uv_picked"), _get(arrays, meta, "uv_reproj")
+    fa = field_drawing_args(field_model if field_model is not None else meta.get("field") if isinstance(meta.get("field"), dict) else None)
+    d = field_data(arrays, meta, T_cam_field)
+    for w in d.warnings:
+        sec.add(f"warning: {w}")
+    add("field and landmarks", lambda: rf.field_landmarks_figure(fa["size"], fa["landmarks"], d.T_cam_field, d.names, fa["outline"]), {"field model": fa or None})
     size = camera.image_size if camera is not None else tuple(meta.get("image_size", (1280, 1024)))
-    add("picks and residuals", lambda: rf.picks_residual_figure(size, names, a, b, image, outlier=_get(arrays, meta, "pick_outlier")), {"picked pixels": a, "reprojected landmarks": b})
-    x, y, s = _get(arrays, meta, "err_x"), _get(arrays, meta, "err_y"), _get(arrays, meta, "err_sigma")
-    add("localisation error map", lambda: rf.localisation_error_figure(x, y, s, fa.get("size", (28.0, 15.0)), T, fa.get("landmarks"), fa.get("outline")), {"error map": s, "grid x": x, "grid y": y})
+    add("picks and residuals", lambda: rf.picks_residual_figure(size, d.names, d.uv_picked, d.uv_reprojected, image, outlier=d.pick_outlier), {"picked pixels": d.uv_picked, "reprojected landmarks": d.uv_reprojected})
+    if not d.error_maps:
+        add("localisation error map", lambda: None, {"error map": None})
+    for label, s in d.error_maps.items():
+        title = f"Expected 1σ localisation error, {label}" + (" (used)" if d.depth_source and d.depth_source in label.lower() else "")
+        add(f"error map ({label})", lambda s=s, title=title: rf.localisation_error_figure(d.grid_x, d.grid_y, s, fa.get("size", (28.0, 15.0)), d.T_cam_field, fa.get("landmarks"), fa.get("outline"), title=title), {"grid x": d.grid_x, "grid y": d.grid_y})
     return sec
 
 

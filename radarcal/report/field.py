@@ -31,8 +31,9 @@ def camera_position_on_field(T_cam_field: np.ndarray) -> tuple[np.ndarray, np.nd
     return -R.T @ t, R.T @ np.array([0.0, 0.0, 1.0])
 
 
-def draw_field(ax, size: tuple[float, float], outline: Sequence[np.ndarray] | None = None, landmarks: Mapping[str, Sequence[float]] | None = None, label_landmarks: bool = True) -> None:
-    """Field rectangle, optional outline polygons (areas, walls) and landmarks on ``ax`` (x right, y up, metres)."""
+def draw_field(ax, size: tuple[float, float], outline: Sequence[np.ndarray] | None = None, landmarks: Mapping[str, Sequence[float]] | None = None, label_landmarks: bool | Sequence[str] = True) -> None:
+    """Field rectangle, optional outline polygons (areas, walls) and landmarks on ``ax`` (x right, y up, metres).
+    ``label_landmarks``: True (all), False (none) or the names to label."""
     from matplotlib.patches import Polygon, Rectangle
 
     L, W = float(size[0]), float(size[1])
@@ -45,8 +46,10 @@ def draw_field(ax, size: tuple[float, float], outline: Sequence[np.ndarray] | No
         xyz = np.array([np.asarray(landmarks[n], float)[:3] for n in names]).reshape(-1, 3)
         ax.plot(xyz[:, 0], xyz[:, 1], "s", color="tab:green", ms=5, zorder=3, label="landmarks")
         if label_landmarks:
+            wanted = set(names) if label_landmarks is True else set(label_landmarks)
             for n, (x, y, _) in zip(names, xyz):
-                ax.annotate(n, (x, y), xytext=(3, 3), textcoords="offset points", fontsize=6, color="darkgreen")
+                if n in wanted:
+                    ax.annotate(n, (x, y), xytext=(3, 3), textcoords="offset points", fontsize=7, color="darkgreen")
     m = 0.05 * L
     ax.set_xlim(-m, L + m)
     ax.set_ylim(-m, W + m)
@@ -59,7 +62,7 @@ def field_landmarks_figure(size: tuple[float, float], landmarks: Mapping[str, Se
     """Top view of the field: landmarks (the picked ones circled) and, with ``T_cam_field``, the camera's
     position and viewing direction."""
     fig, ax = new_figure(8.0, 8.0 * size[1] / size[0] + 0.8)
-    draw_field(ax, size, outline, landmarks)
+    draw_field(ax, size, outline, landmarks, label_landmarks=list(picked) if picked else True)
     if picked:
         xyz = np.array([np.asarray(landmarks[n], float)[:3] for n in picked if n in landmarks]).reshape(-1, 3)
         ax.plot(xyz[:, 0], xyz[:, 1], "o", mfc="none", mec="tab:red", ms=11, mew=1.5, zorder=4, label="picked")
@@ -116,7 +119,7 @@ def localisation_error_figure(x_grid: np.ndarray, y_grid: np.ndarray, sigma_m: n
     fig.colorbar(im, ax=ax, label="1σ error (m)", shrink=0.8)
     lv = [lv for lv in levels_m if finite.size and finite.min() < lv < finite.max()]
     if lv:
-        cs = ax.contour(x, y, np.where(np.isfinite(s), s, np.nanmax(s) * 10 if finite.size else 1), levels=lv, colors="black", linewidths=0.7, zorder=3)
+        cs = ax.contour(x, y, np.ma.masked_invalid(s), levels=lv, colors="black", linewidths=0.7, zorder=3)
         ax.clabel(cs, fontsize=7, fmt="%g m")
     if T_cam_field is not None:
         c, _ = camera_position_on_field(T_cam_field)

@@ -85,3 +85,9 @@ def test_intrinsics_notebook_opencv_stereo_chessboard(kernel_env, tmp_path, shar
     kernel_env.setenv("RADARCAL_REPORT_BUNDLE", str(bundle))
     kernel_env.setenv("RADARCAL_REPORT_CAMERA", "cam0")
     assert_figures(run_notebook("intrinsics_report.ipynb", tmp_path), 8)
+
+
+# --- field --------------------------------------------------------------------------------------------------------------
+def test_field_notebook_generated(kernel_env, tmp_path):
+    # field + picks + two error maps (LiDAR, ground) + minimap + error over time
+    assert_figures(run_notebook("field_report.ipynb", tmp_path), 6)
