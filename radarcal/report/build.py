@@ -127,6 +127,21 @@ def _read_npz(p: Path) -> tuple[dict, dict]:
     return arrays, meta
 
 
+def _read_image_file(name: str, base: Path | None) -> np.ndarray | None:
+    """An image named in a session (absolute, or relative to the bundle), or None when it is not there."""
+    p = Path(name)
+    if not p.is_absolute() and base is not None:
+        p = base / p
+    if not p.is_file():
+        return None
+    try:
+        from radarcal.io import read_image
+
+        return read_image(p)
+    except InputError:
+        return None
+
+
 def _read_image_from_meta(meta: dict, base: Path | None, *keys: str) -> np.ndarray | None:
     for k in keys:
         v = meta.get(k)
@@ -228,6 +243,7 @@ class IntrinsicsData:
     corner_view: np.ndarray | None = None  # (N,) index into view_names
     corner_outlier: np.ndarray | None = None  # (N,) bool
     view_names: list[str] = field(default_factory=list)
+    view_files: list[str] = field(default_factory=list)  # image file of each view, when the session names them
     view_error: np.ndarray | None = None  # (V,) px
     view_error_label: str = "mean |residual| (px)"
     view_outlier: np.ndarray | None = None  # (V,) bool
@@ -243,6 +259,19 @@ class IntrinsicsData:
     cv_diff_px: np.ndarray | None = None
     cv_sigma_px: np.ndarray | None = None
     warnings: list[str] = field(default_factory=list)
+
+    def worst_view(self) -> int | None:
+        """Index of the solved view with the largest error among those the solver kept (None if unknown)."""
+        if self.view_error is None or np.size(self.view_error) == 0:
+            return None
+        e = np.asarray(self.view_error, float).copy()
+        if self.view_outlier is not None and not np.all(self.view_outlier):
+            e[np.asarray(self.view_outlier, bool)] = -np.inf
+        return int(np.nanargmax(np.where(np.isfinite(e), e, -np.inf)))
+
+    def view_mask(self, k: int) -> np.ndarray:
+        """Mask of the corners of solved view ``k``."""
+        return np.asarray(self.corner_view, int).ravel() == k
 
     def inlier_residuals(self) -> np.ndarray | None:
         """Residuals of corners that are neither outliers nor in an outlier view."""
@@ -271,7 +300,8 @@ def intrinsics_data(arrays: dict, meta: dict, camera: Camera, rms_px: float | No
         d.corner_view = np.asarray(arrays["corner_view"], int)
         all_names = _str_list(arrays.get("names"))
         vi = np.asarray(arrays.get("view_index", np.arange(int(np.max(d.corner_view, initial=-1)) + 1)), int).ravel()
-        d.view_names = [all_names[i] if 0 <= i < len(all_names) else f"view {i}" for i in vi]
+        d.view_files = [all_names[i] if 0 <= i < len(all_names) else "" for i in vi]
+        d.view_names = [Path(f).name if f else f"view {i}" for f, i in zip(d.view_files, vi)]
         d.view_error = arrays.get("view_rms_px")
         d.view_error_label = "RMS of inlier residuals (px)"
         d.view_outlier = ~np.asarray(arrays["view_used"], bool) if "view_used" in arrays else None
@@ -285,7 +315,7 @@ def intrinsics_data(arrays: dict, meta: dict, camera: Camera, rms_px: float | No
             d.view_error_label = "RMS residual (px; rejected views: all corners)"
         d.corner_outlier = ~np.asarray(arrays["inliers"], bool) if "inliers" in arrays else None
         status = _str_list(arrays.get("status"))
-        d.rejected = [[n, st] for n, st in zip(all_names, status) if st != "used"]
+        d.rejected = [[Path(n).name, st] for n, st in zip(all_names, status) if st != "used"]
     else:
         vidx = _get(arrays, meta, "view_index")
         d.corner_view = None if vidx is None else np.asarray(vidx, int)
@@ -316,7 +346,7 @@ def intrinsics_data(arrays: dict, meta: dict, camera: Camera, rms_px: float | No
     return d
 
 
-def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dict, entry=None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
+def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dict, entry=None, image: np.ndarray | None = None, skipped: list[str] | None = None, base: Path | None = None) -> Section:
     """Every intrinsics figure the session allows."""
     sec = Section(f"Intrinsics: {camera_name}")
     add = _Adder(sec, skipped if skipped is not None else [])
@@ -329,7 +359,13 @@ def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dic
     for w in d.warnings:
         sec.add(f"warning: {w}")
     add("per-view error", lambda: ri.per_view_error_figure(d.view_names, d.view_error, d.view_outlier, meta.get("view_threshold_px"), d.rms_px, ylabel=d.view_error_label), {"per-view errors": d.view_error})
-    add("residual vectors", lambda: ri.residual_vectors_figure(d.uv, d.residual, size, image=image, outlier=d.corner_outlier), {"corner pixels": d.uv, "residuals": d.residual})
+    add("residual vectors", lambda: ri.residual_vectors_figure(d.uv, d.residual, size, image=image, outlier=d.corner_outlier, title="Residual vectors, all views"), {"corner pixels": d.uv, "residuals": d.residual})
+    k = d.worst_view()
+    if k is not None and d.corner_view is not None and k < len(d.view_files) and d.uv is not None and d.residual is not None:
+        img = _read_image_file(d.view_files[k], base)
+        if img is not None:
+            m = d.view_mask(k)
+            sec.add(ri.residual_vectors_figure(np.asarray(d.uv)[m], np.asarray(d.residual)[m], size, image=img, outlier=None if d.corner_outlier is None else np.asarray(d.corner_outlier)[m], title=f"Residual vectors on the worst kept view, {d.view_names[k]}"))
     add("residual histogram", lambda: ri.residual_histogram_figure(d.inlier_residuals(), d.noise_px, title="Residuals (inliers) against the expected noise"), {"residuals": d.residual})
     add("coverage", lambda: ri.coverage_figure(d.uv, size), {"corner pixels": d.uv})
     add("projection uncertainty", lambda: ri.uncertainty_map_figure(d.sigma_u, d.sigma_v, d.sigma_px, size, d.valid_threshold_px, d.uv), {"uncertainty grid": d.sigma_px, "grid u": d.sigma_u, "grid v": d.sigma_v})
@@ -528,7 +564,7 @@ def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, t
                 content.skipped.append(f"{key}: camera {cam_name!r} not in the bundle")
                 continue
             img = _read_image_from_meta(meta, base, "image", "images", "image_files", "view_files")
-            content.sections.append(intrinsics_section(cam_name, cam, arrays, meta, entry, img, content.skipped))
+            content.sections.append(intrinsics_section(cam_name, cam, arrays, meta, entry, img, content.skipped, base))
         elif kind == "lidar_camera":
             cam_name = meta.get("camera") or rest.split("_")[0]
             lidar_name = meta.get("lidar") or rest[len(cam_name) + 1 :]

@@ -79,7 +79,7 @@ def residual_vectors_figure(uv: np.ndarray, residual_px: np.ndarray, image_size:
     if out.any():
         ax.quiver(uv[out, 0], uv[out, 1], r[out, 0] * scale, r[out, 1] * scale, color="tab:red", angles="xy", scale_units="xy", scale=1.0, width=0.003, label="outliers")
         ax.legend(fontsize=8, loc="upper right")
-    ax.set_title(f"{title} (arrows ×{scale:.0f})")
+    ax.set_title(f"{title}\n(arrows ×{scale:.0f})", fontsize=10)
     return fig
 
 
