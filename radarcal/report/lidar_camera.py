@@ -25,17 +25,21 @@ __all__ = [
 PARAM_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
 
 
-def project_cloud(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.ndarray, max_points: int | None = 60_000, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def project_cloud(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.ndarray, max_points: int | None = 60_000, seed: int = 0, return_count: bool = False):
     """Pixels and depths of the cloud points that land inside the image in front of the camera (subsampled to
-    ``max_points`` with a fixed seed), sorted far-to-near so near points are drawn on top."""
+    ``max_points`` with a fixed seed), sorted far-to-near so near points are drawn on top. With ``return_count``
+    also the number of points in view before subsampling."""
     p = np.asarray(points_lidar, float).reshape(-1, 3)
     uv, valid, z = camera.project_from(T_cam_lidar, p)
     keep = valid & camera.in_image(uv)
     uv, z = uv[keep], z[keep]
+    n_in_view = len(z)
     if max_points is not None and len(z) > max_points:
         idx = np.random.default_rng(seed).choice(len(z), max_points, replace=False)
         uv, z = uv[idx], z[idx]
     order = np.argsort(-z, kind="stable")
+    if return_count:
+        return uv[order], z[order], n_in_view
     return uv[order], z[order]
 
 
@@ -47,15 +51,16 @@ def cloud_overlay_figure(image: np.ndarray | None, camera: Camera, points_lidar:
     w, h = camera.image_size
     fig, axes = new_figure(6.0 * n if n > 1 else 8.0, (6.0 if n > 1 else 8.0) * h / w + 0.8, 1, n)
     axes = np.atleast_1d(axes)
-    projected = [project_cloud(camera, T, points_lidar, max_points) for _, T in items]
+    projected = [project_cloud(camera, T, points_lidar, max_points, return_count=True) for _, T in items]
     if depth_range is None:
-        zs = np.concatenate([z for _, z in projected]) if projected else np.zeros(0)
+        zs = np.concatenate([z for _, z, _ in projected]) if projected else np.zeros(0)
         depth_range = (float(np.percentile(zs, 2)), float(np.percentile(zs, 98))) if zs.size else (0.0, 1.0)
     sc = None
-    for ax, (label, _), (uv, z) in zip(axes, items, projected):
+    for ax, (label, _), (uv, z, n) in zip(axes, items, projected):
         show_image(ax, camera.image_size, image)
         sc = ax.scatter(uv[:, 0], uv[:, 1], c=z, s=point_size, cmap="turbo", vmin=depth_range[0], vmax=depth_range[1], linewidths=0)
-        ax.set_title(f"{label}: {len(z)} points in view", fontsize=10)
+        shown = "" if n == len(z) else f" ({len(z)} drawn)"
+        ax.set_title(f"{label}: {n} points in view{shown}", fontsize=10)
     if sc is not None:
         fig.colorbar(sc, ax=list(axes), label="depth (m)", shrink=0.8)
     fig.suptitle(title)
