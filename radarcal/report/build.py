@@ -374,6 +374,28 @@ def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dic
     return sec
 
 
+def stereo_section(key: str, arrays: dict, meta: dict, skipped: list[str] | None = None) -> Section:
+    """``stereo/<cam0>_<cam1>`` (``radarcal intrinsics --right``): per-pair RMS in both cameras and the residuals."""
+    sec = Section(f"Stereo: {key.split('/', 1)[-1]}")
+    add = _Adder(sec, skipped if skipped is not None else [])
+    r0, r1, pair = arrays.get("residuals0"), arrays.get("residuals1"), arrays.get("pair_of_corner")
+    inl = np.asarray(arrays["inliers"], bool).ravel() if "inliers" in arrays else None
+    names = [" / ".join(Path(str(x)).name for x in np.atleast_1d(row)) for row in np.asarray(arrays.get("pair_names", np.zeros((0, 2), str)))]
+
+    def per_pair() -> Any:
+        p = np.asarray(pair, int).ravel()
+        n = max(len(names), int(p.max()) + 1 if p.size else 0)
+        m = np.ones(p.size, bool) if inl is None else inl
+        r2 = np.sum(np.asarray(r0, float) ** 2, axis=1) + np.sum(np.asarray(r1, float) ** 2, axis=1)
+        rms = np.sqrt(np.bincount(p[m], r2[m] / 2, n) / np.maximum(np.bincount(p[m], None, n), 1))
+        labels = names if len(names) == n else [f"pair {i}" for i in range(n)]
+        return ri.per_view_error_figure(labels, rms, None, title="Stereo: RMS per pair (both cameras)", ylabel="RMS residual (px)")
+
+    add("per-pair error", per_pair, {"residuals0": r0, "residuals1": r1, "pair_of_corner": pair})
+    add("stereo residual histogram", lambda: ri.residual_histogram_figure(np.r_[np.asarray(r0)[inl if inl is not None else slice(None)], np.asarray(r1)[inl if inl is not None else slice(None)]], title="Stereo residuals (both cameras, inliers)"), {"residuals0": r0, "residuals1": r1})
+    return sec
+
+
 def lidar_camera_section(key: str, camera: Camera, arrays: dict, meta: dict, T_final_bundle: np.ndarray | None = None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
     sec = Section(f"LiDAR-camera: {key.split('/', 1)[-1]}")
     add = _Adder(sec, skipped if skipped is not None else [])
@@ -549,7 +571,7 @@ def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, t
     sessions = discover_sessions(bundle, session_dir)
     base = bundle.path.parent if bundle.path else None
     field_model = bundle.field_model
-    order = {"intrinsics": 0, "lidar_camera": 1, "field_pnp": 2}
+    order = {"intrinsics": 0, "stereo": 1, "lidar_camera": 2, "field_pnp": 3}
     with_intrinsics = {k.partition("/")[2] for k in sessions if k.startswith("intrinsics/")}
     content.sections.append(_overview(bundle, skip_cameras=with_intrinsics))
     for key, (arrays, meta) in sorted(sessions.items(), key=lambda kv: (order.get(kv[0].partition("/")[0], 9), kv[0])):
@@ -565,6 +587,8 @@ def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, t
                 continue
             img = _read_image_from_meta(meta, base, "image", "images", "image_files", "view_files")
             content.sections.append(intrinsics_section(cam_name, cam, arrays, meta, entry, img, content.skipped, base))
+        elif kind == "stereo":
+            content.sections.append(stereo_section(key, arrays, meta, content.skipped))
         elif kind == "lidar_camera":
             cam_name = meta.get("camera") or rest.split("_")[0]
             lidar_name = meta.get("lidar") or rest[len(cam_name) + 1 :]

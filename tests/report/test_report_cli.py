@@ -229,3 +229,21 @@ def test_report_renders_in_chromium(full_report, tmp_path):
     b, g, r = (img[..., i].astype(int) for i in range(3))
     red = (r > 150) & (g < 90) & (b < 90)  # tab:red = (214, 39, 40)
     assert red.sum() > 300, "the outlier bar of the per-view error figure is not visible"
+
+
+def test_stereo_section_per_pair_rms():
+    from radarcal.report.build import stereo_section
+
+    # pair k: every corner off by (k+1)*0.1 px in x in both cameras -> RMS per pair (k+1)*0.1 px; one outlier corner ignored
+    pair = np.repeat(np.arange(3), 4)
+    r0 = np.c_[(pair + 1) * 0.1, np.zeros(12)]
+    r0[0] = [50.0, 0.0]
+    inl = np.ones(12, bool)
+    inl[0] = False
+    arrays = {"residuals0": r0, "residuals1": r0.copy(), "pair_of_corner": pair, "inliers": inl, "pair_names": np.array([["l1.png", "r1.png"], ["l2.png", "r2.png"], ["l3.png", "r3.png"]])}
+    sec = stereo_section("stereo/cam0_cam1", arrays, {})
+    figs = [it for it in sec.items if hasattr(it, "savefig")]
+    assert len(figs) == 2
+    bars = figs[0].axes[0].patches
+    assert np.allclose([b.get_height() for b in bars], [0.1, 0.2, 0.3])
+    assert [t.get_text() for t in figs[0].axes[0].get_xticklabels()] == ["l1.png / r1.png", "l2.png / r2.png", "l3.png / r3.png"]
