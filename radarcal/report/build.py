@@ -30,7 +30,7 @@ from radarcal.report import intrinsics as ri
 from radarcal.report import lidar_camera as rl
 from radarcal.report.html import Section, Table
 
-__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data"]
+__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data"]
 
 
 @dataclass
@@ -70,7 +70,8 @@ _ALIASES: dict[str, tuple[str, ...]] = {
     "T_final": ("T_cam_lidar", "T_final", "T_after"),
     "edge_uv_lidar": ("edge_uv_lidar", "match_uv_lidar", "uv_lidar_edges"),
     "edge_uv_image": ("edge_uv_image", "match_uv_image", "uv_image_edges"),
-    "edge_residual": ("edge_residual_px", "match_residual_px", "edge_residual"),
+    "edge_residual": ("edge_residual_px", "match_residual_px", "edge_residual", "residuals_after"),
+    "residual_before": ("edge_residual_before_px", "residuals_before"),
     "profile_offsets": ("profile_offsets", "cost_offsets"),
     "profile_costs": ("profile_costs", "cost_profiles", "costs"),
     "sigma6": ("sigma6", "sigma_params", "param_sigma6"),
@@ -396,28 +397,68 @@ def stereo_section(key: str, arrays: dict, meta: dict, skipped: list[str] | None
     return sec
 
 
+@dataclass
+class LidarCameraData:
+    """A ``lidar_camera/<camera>_<lidar>`` session normalised for the figures."""
+
+    points_lidar: np.ndarray | None = None
+    T_init: np.ndarray | None = None
+    T_final: np.ndarray | None = None
+    edge_uv_lidar: np.ndarray | None = None
+    edge_uv_image: np.ndarray | None = None
+    edge_residual_px: np.ndarray | None = None
+    residual_before_px: np.ndarray | None = None
+    profile_offsets: np.ndarray | None = None  # (6, n) rx ry rz (rad) tx ty tz (m)
+    profile_costs: np.ndarray | None = None  # (6, n)
+    sigma6: np.ndarray | None = None  # rx ry rz (rad) tx ty tz (m)
+    robust_scale_px: float | None = None
+    image_files: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def lidar_camera_data(arrays: dict, meta: dict, T_final: np.ndarray | None = None) -> LidarCameraData:
+    """Normalise a LiDAR-camera session (generic names of ``_ALIASES``; per-parameter profiles may also be stored as
+    ``profile_<rx|ry|rz|tx|ty|tz>`` arrays of shape (2, n): offsets, costs)."""
+    d = LidarCameraData()
+    d.points_lidar = _get(arrays, meta, "points")
+    T0, T1 = _get(arrays, meta, "T_init"), _get(arrays, meta, "T_final")
+    d.T_init = None if T0 is None else np.asarray(T0, float)
+    d.T_final = np.asarray(T1, float) if T1 is not None else T_final
+    d.edge_uv_lidar, d.edge_uv_image = _get(arrays, meta, "edge_uv_lidar"), _get(arrays, meta, "edge_uv_image")
+    r = _get(arrays, meta, "edge_residual")
+    if r is None and d.edge_uv_lidar is not None and d.edge_uv_image is not None:
+        r = np.linalg.norm(np.asarray(d.edge_uv_image, float).reshape(-1, 2) - np.asarray(d.edge_uv_lidar, float).reshape(-1, 2), axis=1)
+    d.edge_residual_px = r
+    d.residual_before_px = _get(arrays, meta, "residual_before")
+    d.profile_offsets, d.profile_costs = _get(arrays, meta, "profile_offsets"), _get(arrays, meta, "profile_costs")
+    if d.profile_costs is None and all(f"profile_{n}" in arrays for n in rl.PARAM_NAMES):
+        prof = [np.asarray(arrays[f"profile_{n}"], float) for n in rl.PARAM_NAMES]
+        d.profile_offsets = np.stack([p[0] for p in prof])
+        d.profile_costs = np.stack([p[1] for p in prof])
+    s6 = _get(arrays, meta, "sigma6")
+    d.sigma6 = None if s6 is None else np.asarray(s6, float).ravel()
+    rs = meta.get("robust_scale_px", meta.get("loss_scale_px"))
+    d.robust_scale_px = float(rs) if isinstance(rs, (int, float)) else None
+    imgs = meta.get("images", meta.get("image"))
+    d.image_files = [str(x) for x in (imgs if isinstance(imgs, list) else [imgs] if imgs else [])]
+    d.warnings = [str(w) for w in meta.get("warnings") or []]
+    return d
+
+
 def lidar_camera_section(key: str, camera: Camera, arrays: dict, meta: dict, T_final_bundle: np.ndarray | None = None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
     sec = Section(f"LiDAR-camera: {key.split('/', 1)[-1]}")
     add = _Adder(sec, skipped if skipped is not None else [])
-    pts = _get(arrays, meta, "points")
-    T0 = _get(arrays, meta, "T_init")
-    T1 = _get(arrays, meta, "T_final")
-    if T1 is None:
-        T1 = T_final_bundle
-    transforms = {k: np.asarray(v, float) for k, v in (("before", T0), ("after", T1)) if v is not None}
-    add("cloud over image", lambda: rl.cloud_overlay_figure(image, camera, pts, transforms), {"cloud points": pts, "a transform": transforms or None})
-    a, b, r = _get(arrays, meta, "edge_uv_lidar"), _get(arrays, meta, "edge_uv_image"), _get(arrays, meta, "edge_residual")
-    if r is None and a is not None and b is not None:
-        r = np.linalg.norm(np.asarray(b, float).reshape(-1, 2) - np.asarray(a, float).reshape(-1, 2), axis=1)
-    add("edge matches", lambda: rl.edge_matches_figure(image, camera.image_size, a, b, r), {"projected edge points": a, "matched image points": b})
-    add("edge residual histogram", lambda: rl.edge_residual_histogram_figure(r, meta.get("robust_scale_px")), {"edge residuals": r})
-    off, cost = _get(arrays, meta, "profile_offsets"), _get(arrays, meta, "profile_costs")
-    sig6 = _get(arrays, meta, "sigma6")
+    d = lidar_camera_data(arrays, meta, T_final_bundle)
+    for w in d.warnings:
+        sec.add(f"warning: {w}")
+    transforms = {k: v for k, v in (("before", d.T_init), ("after", d.T_final)) if v is not None}
+    add("cloud over image", lambda: rl.cloud_overlay_figure(image, camera, d.points_lidar, transforms), {"cloud points": d.points_lidar, "a transform": transforms or None})
+    add("edge matches", lambda: rl.edge_matches_figure(image, camera.image_size, d.edge_uv_lidar, d.edge_uv_image, d.edge_residual_px), {"projected edge points": d.edge_uv_lidar, "matched image points": d.edge_uv_image})
+    add("edge residual histogram", lambda: rl.edge_residual_histogram_figure(d.edge_residual_px, d.robust_scale_px, before_px=d.residual_before_px), {"edge residuals": d.edge_residual_px})
     deg = math.degrees(1.0)
-    add("cost profiles", lambda: rl.cost_profile_figure(off, cost, display_scale=[deg] * 3 + [1.0] * 3, sigma=None if sig6 is None else np.asarray(sig6, float)), {"cost profiles": cost, "profile offsets": off})
-    if sig6 is not None:
-        s = np.asarray(sig6, float).ravel()
-        rows = [[n, f"{v * (deg if i < 3 else 1):.4g}", "deg" if i < 3 else "m"] for i, (n, v) in enumerate(zip(rl.PARAM_NAMES, s))]
+    add("cost profiles", lambda: rl.cost_profile_figure(d.profile_offsets, d.profile_costs, display_scale=[deg] * 3 + [1.0] * 3, sigma=d.sigma6), {"cost profiles": d.profile_costs, "profile offsets": d.profile_offsets})
+    if d.sigma6 is not None:
+        rows = [[n, f"{v * (deg if i < 3 else 1):.4g}", "deg" if i < 3 else "m"] for i, (n, v) in enumerate(zip(rl.PARAM_NAMES, d.sigma6))]
         sec.add(Table(["parameter", "σ", "unit"], rows, caption="σ of the result (from the Jacobian)"))
     return sec
 

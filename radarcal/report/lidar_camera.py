@@ -89,12 +89,20 @@ def edge_matches_figure(image: np.ndarray | None, image_size: tuple[int, int], u
     return fig
 
 
-def edge_residual_histogram_figure(residual_px: np.ndarray, robust_scale_px: float | None = None, bins: int = 50, title: str = "Edge-match residuals"):
-    """Histogram of point-to-line residuals (px) with median, 90th percentile and the robust-loss scale marked."""
+def edge_residual_histogram_figure(residual_px: np.ndarray, robust_scale_px: float | None = None, bins: int = 50, before_px: np.ndarray | None = None, title: str = "Edge-match residuals"):
+    """Histogram of point-to-line residuals (px) with median, 90th percentile and the robust-loss scale marked;
+    ``before_px`` (the residuals at the initial guess) drawn behind for comparison."""
     r = np.abs(np.asarray(residual_px, float).ravel())
     r = r[np.isfinite(r)]
     fig, ax = new_figure(6.0, 3.6)
-    ax.hist(r, bins=bins, color="tab:blue", alpha=0.8)
+    edges = np.histogram_bin_edges(r, bins=bins) if r.size else bins
+    if before_px is not None:
+        rb = np.abs(np.asarray(before_px, float).ravel())
+        rb = rb[np.isfinite(rb)]
+        hi = float(np.percentile(np.r_[r, rb], 99)) if (r.size + rb.size) else 1.0
+        edges = np.linspace(0.0, max(hi, 1e-6), bins + 1)
+        ax.hist(np.minimum(rb, hi), bins=edges, color="tab:gray", alpha=0.5, label=f"before (n = {rb.size}, median {np.median(rb) if rb.size else float('nan'):.2f} px)")
+    ax.hist(r, bins=edges, color="tab:blue", alpha=0.8, label="after" if before_px is not None else None)
     med = float(np.median(r)) if r.size else float("nan")
     p90 = float(np.percentile(r, 90)) if r.size else float("nan")
     ax.axvline(med, color="k", ls="-", lw=1, label=f"median {med:.2f} px")
