@@ -1,0 +1,1 @@
+"""Extrinsic calibration solvers (LiDAR-camera, ...)."""

@@ -1,0 +1,328 @@
+"""Targetless refinement of ``T_cam_lidar`` by aligning LiDAR plane-intersection edges with image edges.
+
+For every scene (image + cloud seen from the same rig) the projected LiDAR edge samples are matched to image edge
+pixels (kd-tree, k nearest, a local line fitted to them, direction consistency with the projected LiDAR edge);
+the residual is the signed point-to-line distance in pixels through the full :class:`radarcal.camera.Camera`
+model. The 6 parameters (a rotation vector and translation applied on the left, in the camera frame) are solved
+by ``scipy.optimize.least_squares`` with a Cauchy loss, re-matching until the update is below a tolerance, over a
+coarse-to-fine schedule of match radii. A grid search over rotations (distance-transform score) first widens the
+basin. All scenes share one ``T`` (multi-scene joint refinement).
+
+Reported: residual, match counts, sigma of the 6 parameters (from the Jacobian; matches along one edge are
+correlated, so treat it as a lower bound), observability (spread of edge directions, Jacobian conditioning),
+convergence, and cost profiles along each parameter for a report.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from radarcal import geometry
+from radarcal.camera import Camera
+from radarcal.extrinsics.edges import ImageEdges, LidarEdges, edge_score
+
+__all__ = ["EdgeScene", "RefineOptions", "RefineResult", "refine_edges", "coarse_rotation_search", "match_edges"]
+
+PARAM_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
+
+
+@dataclass
+class EdgeScene:
+    camera: Camera
+    lidar: LidarEdges
+    image: ImageEdges
+
+
+@dataclass
+class RefineOptions:
+    radii_px: tuple[float, ...] = (25.0, 12.0, 6.0, 3.0)
+    k_neighbours: int = 5
+    max_angle_deg: float = 20.0
+    loss_scale_px: float = 1.0  # Cauchy scale at the finest radius (coarser stages use radius / 4)
+    max_rematch: int = 15
+    tol_rot_rad: float = 2e-6
+    tol_trans_m: float = 2e-5
+    coarse_search_deg: float = 6.0  # half-width of the rotation grid (0 disables)
+    coarse_step_deg: float = 1.0
+    fix_translation: bool = False
+    min_matches: int = 60
+    n_starts: int = 3  # distinct coarse-search minima refined in full (plus the initial guess itself)
+
+
+@dataclass
+class RefineResult:
+    T_cam_lidar: np.ndarray
+    T_init: np.ndarray
+    converged: bool
+    message: str
+    rms_px: float  # RMS of inlier point-to-line residuals (|r| < 3 * loss scale)
+    mean_abs_px: float
+    n_matches: int
+    n_inliers: int
+    sigma: np.ndarray  # (6,) rx ry rz (rad) tx ty tz (m)
+    score_before: float  # edge_score (mean capped distance to nearest image edge, px), averaged over scenes
+    score_after: float
+    observability: dict
+    warnings: list[str]
+    history: list[dict] = field(default_factory=list)
+    matches: dict = field(default_factory=dict)  # arrays of the final matching (for a report)
+    residuals_before: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    residuals_after: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    profiles: dict = field(default_factory=dict)  # name -> (offsets, cost)
+
+
+def _apply(x: np.ndarray, T0: np.ndarray) -> np.ndarray:
+    return geometry.T_from_rotvec(x[:3], x[3:]) @ T0
+
+
+def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_angle_deg: float = 20.0):
+    """Matches of projected LiDAR edge samples to local image edge lines.
+    Returns (index into scene.lidar.points, line point m (n,2), line normal (n,2), residual (n,))."""
+    cam, le, ie = scene.camera, scene.lidar, scene.image
+    if ie.tree is None or len(le.points) == 0:
+        return np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
+    uv, valid, z = cam.project_from(T, le.points)
+    uv2, valid2, _ = cam.project_from(T, le.points + 0.05 * le.dirs)
+    ok = valid & valid2 & cam.in_image(uv, 2.0) & (z > 0.3)
+    idx = np.flatnonzero(ok)
+    if len(idx) == 0:
+        return np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
+    d2 = uv2[idx] - uv[idx]
+    d2 /= np.maximum(np.linalg.norm(d2, axis=1, keepdims=True), 1e-12)
+    dist, nn = ie.tree.query(uv[idx], k=k, distance_upper_bound=radius)
+    full = np.all(np.isfinite(dist), axis=1)
+    idx, d2, nn, uvp = idx[full], d2[full], nn[full], uv[idx][full]
+    pts = ie.uv[nn]  # (n,k,2)
+    m = pts.mean(1)
+    c = pts - m[:, None, :]
+    cov = np.einsum("nki,nkj->nij", c, c) / k
+    w, V = np.linalg.eigh(cov)
+    line_dir = V[:, :, 1]
+    linear = w[:, 0] < 0.1 * np.maximum(w[:, 1], 1e-9)
+    # direction consistency: projected LiDAR edge vs the image line and vs the pixels' gradient-based directions
+    cos_l = np.abs(np.sum(line_dir * d2, 1))
+    cos_g = np.abs(np.einsum("nki,ni->nk", ie.dirs[nn], d2)).mean(1)
+    cmax = np.cos(np.radians(max_angle_deg))
+    keep = linear & (cos_l > cmax) & (cos_g > cmax)
+    normal = np.stack([-line_dir[:, 1], line_dir[:, 0]], 1)
+    r = np.sum((uvp - m) * normal, 1)
+    keep &= np.abs(r) < radius
+    return idx[keep], m[keep], normal[keep], r[keep]
+
+
+def _residual_fn(x, T0, scenes, matches, fix_t):
+    xx = x if not fix_t else np.concatenate([x, np.zeros(3)])
+    T = _apply(xx, T0)
+    out = []
+    for sc, (idx, m, n, _) in zip(scenes, matches):
+        if len(idx) == 0:
+            continue
+        uv, valid, _ = sc.camera.project_from(T, sc.lidar.points[idx])
+        r = np.sum((uv - m) * n, 1)
+        r[~valid] = 50.0
+        out.append(r)
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def _score_all(scenes, T, cap=20.0):
+    vals = [edge_score(sc.camera, T, sc.lidar, sc.image, cap) for sc in scenes]
+    w = np.array([max(n, 1) for _, n in vals], float)
+    return float(np.sum([s * n for (s, _), n in zip(vals, w)]) / w.sum())
+
+
+def coarse_rotation_search(scenes: list[EdgeScene], T0: np.ndarray, half_width_deg: float = 6.0, step_deg: float = 1.0, max_points: int = 4000,
+                           n_best: int = 3, rng=None) -> list[tuple[np.ndarray, float]]:
+    """Grid search over rotations about the camera centre (rotation-vector offsets multiplied on the left, which keeps
+    the camera centre fixed) minimising a capped distance-transform score; the ``n_best`` distinct grid minima are
+    each polished on a finer grid. Returns [(T, score)] best first."""
+    rng = rng or np.random.default_rng(0)
+    subs = []
+    for sc in scenes:
+        pts = sc.lidar.points
+        if len(pts) > max_points:
+            pts = pts[rng.choice(len(pts), max_points, replace=False)]
+        subs.append(pts)
+
+    def score(T, cap):
+        tot, n = 0.0, 0
+        for sc, pts in zip(scenes, subs):
+            uv, valid, _ = sc.camera.project_from(T, pts)
+            ins = valid & sc.camera.in_image(uv, 2.0)
+            ij = np.round(uv[ins]).astype(int)
+            d = np.minimum(sc.image.dist[ij[:, 1], ij[:, 0]], cap)
+            tot += d.sum() + cap * (len(pts) - ins.sum())  # points leaving the image count as misses
+            n += len(pts)
+        return tot / max(n, 1)
+
+    def grid(center, hw, st, cap):
+        g = np.radians(np.arange(-hw, hw + 1e-9, st))
+        offs = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T
+        vals = np.array([score(geometry.T_from_rotvec(o, np.zeros(3)) @ center, cap) for o in offs])
+        return offs, vals
+
+    if half_width_deg <= 0:
+        return [(T0, score(T0, 8.0))]
+    offs, vals = grid(T0, half_width_deg, step_deg, 25.0)
+    order = np.argsort(vals)
+    picked: list[np.ndarray] = []
+    for i in order:
+        if all(np.degrees(np.linalg.norm(offs[i] - p)) > 1.5 * step_deg for p in picked):
+            picked.append(offs[i])
+        if len(picked) >= n_best:
+            break
+    out = []
+    for p in picked:
+        c = geometry.T_from_rotvec(p, np.zeros(3)) @ T0
+        o2, v2 = grid(c, step_deg, step_deg / 4, 8.0)
+        k = int(np.argmin(v2))
+        out.append((geometry.T_from_rotvec(o2[k], np.zeros(3)) @ c, float(v2[k])))
+    out.sort(key=lambda t: t[1])
+    return out
+
+
+def _run_stages(scenes, T, o):
+    """Coarse-to-fine re-matching and robust least squares from one start. Rotation only at the coarse radii
+    (translation is weakly observed and would absorb wrong matches), all 6 parameters at the fine ones."""
+    history = []
+    converged_stage = False
+    for si, radius in enumerate(o.radii_px):
+        f_scale = o.loss_scale_px if radius == o.radii_px[-1] else max(o.loss_scale_px, radius / 4)
+        rot_only = o.fix_translation or (si < len(o.radii_px) - 2)
+        converged_stage = False
+        for it in range(o.max_rematch):
+            matches = [match_edges(sc, T, radius, o.k_neighbours, o.max_angle_deg) for sc in scenes]
+            n = sum(len(m[0]) for m in matches)
+            if n < max(12, o.min_matches // 4):
+                history.append({"stage": f"r={radius:g}", "iter": it, "matches": n, "note": "too few matches"})
+                break
+            x0 = np.zeros(3 if rot_only else 6)
+            res = least_squares(_residual_fn, x0, args=(T, scenes, matches, rot_only), loss="cauchy", f_scale=f_scale,
+                                x_scale=np.array([1e-3] * 3 + ([] if rot_only else [1e-2] * 3)), method="trf", max_nfev=50)
+            x = res.x if not rot_only else np.concatenate([res.x, np.zeros(3)])
+            T = _apply(x, T)
+            dr, dt = np.linalg.norm(x[:3]), np.linalg.norm(x[3:])
+            history.append({"stage": f"r={radius:g}", "iter": it, "matches": n, "cost": float(res.cost), "step_rot_deg": float(np.degrees(dr)), "step_trans_m": float(dt)})
+            if dr < o.tol_rot_rad and dt < o.tol_trans_m:
+                converged_stage = True
+                break
+    return T, converged_stage, history
+
+
+def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOptions | None = None) -> RefineResult:
+    """Refine ``T_cam_lidar`` over one or more scenes. Never raises on poor data: ``converged`` and ``message``
+    say what happened."""
+    o = options or RefineOptions()
+    T0 = np.asarray(T_init, float)
+    warnings: list[str] = []
+    history: list[dict] = []
+    score_before = _score_all(scenes, T0)
+    if o.coarse_search_deg > 0:
+        starts = coarse_rotation_search(scenes, T0, o.coarse_search_deg, o.coarse_step_deg, n_best=o.n_starts)
+        for Tc, sc_ in starts:
+            history.append({"stage": "coarse-rotation", "score": sc_, "rot_change_deg": geometry.pose_error(Tc, T0)[0]})
+        starts = [T0] + [t for t, _ in starts]
+    else:
+        starts = [T0]
+    matches0 = [match_edges(sc, T0, o.radii_px[-1], o.k_neighbours, o.max_angle_deg) for sc in scenes]
+    residuals_before = np.concatenate([m[3] for m in matches0]) if matches0 else np.zeros(0)
+    best = None
+    for k, Ts in enumerate(starts):
+        T, conv, hist = _run_stages(scenes, Ts, o)
+        fine = _score_all(scenes, T, cap=o.radii_px[-1])
+        history += [{"start": k, **h} for h in hist]
+        history.append({"start": k, "final_score_px": fine, "converged": conv})
+        if best is None or fine < best[0]:
+            best = (fine, T, conv)
+    _, T, converged_stage = best
+    # final matching, statistics
+    matches = [match_edges(sc, T, o.radii_px[-1], o.k_neighbours, o.max_angle_deg) for sc in scenes]
+    n_match = sum(len(m[0]) for m in matches)
+    r_after = _residual_fn(np.zeros(6), T, scenes, matches, False)
+    inl = np.abs(r_after) < 3 * o.loss_scale_px
+    rms = float(np.sqrt(np.mean(r_after[inl] ** 2))) if inl.any() else float("nan")
+    mean_abs = float(np.mean(np.abs(r_after))) if len(r_after) else float("nan")
+    # sigma from the Jacobian at the solution (robust-weighted), all 6 parameters
+    sigma = np.full(6, np.inf)
+    JtJ = np.zeros((6, 6))
+    if n_match >= 6:
+        fin = least_squares(_residual_fn, np.zeros(6), args=(T, scenes, matches, False), loss="cauchy", f_scale=o.loss_scale_px,
+                            x_scale=np.array([1e-3] * 3 + [1e-2] * 3), max_nfev=1)
+        J = fin.jac
+        JtJ = J.T @ J
+        s2 = 2 * fin.cost / max(1, len(fin.fun) - 6)
+        try:
+            cov = np.linalg.inv(JtJ) * s2
+            sigma = np.sqrt(np.abs(np.diag(cov)))
+        except np.linalg.LinAlgError:
+            pass
+    obs = _observability(scenes, matches, T, JtJ, n_match)
+    warnings += obs["warnings"]
+    score_after = _score_all(scenes, T)
+    # convergence verdict
+    moved_deg, moved_m = geometry.pose_error(T, T0)
+    ok = converged_stage and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
+    if not converged_stage:
+        msg = "did not converge: the update was still moving at the finest radius (increase --max-iter or improve the initial guess)"
+    elif n_match < o.min_matches:
+        msg = f"did not converge: only {n_match} edge matches at the finest radius (< {o.min_matches}); the initial guess is probably too far off or the scene has too few plane-plane edges"
+    elif not (np.isfinite(rms) and rms < 2.5 * o.loss_scale_px):
+        msg = f"did not converge: residual {rms:.2f} px is too large for an aligned solution"
+    elif score_after > score_before + 0.05:
+        msg = f"did not converge: the edge score got worse ({score_before:.2f} -> {score_after:.2f} px)"
+    else:
+        msg = f"converged: {n_match} matches, rms {rms:.2f} px, moved {moved_deg:.3f} deg / {moved_m * 100:.1f} cm from the initial guess"
+    prof = cost_profiles(scenes, T, matches, o.loss_scale_px)
+    mt = {}
+    for k, (sc, (idx, m, n, r)) in enumerate(zip(scenes, matches)):
+        uv, _, _ = sc.camera.project_from(T, sc.lidar.points[idx])
+        mt[f"scene{k}_lidar_xyz"] = sc.lidar.points[idx]
+        mt[f"scene{k}_uv"] = uv
+        mt[f"scene{k}_line_point"] = m
+        mt[f"scene{k}_line_normal"] = n
+    return RefineResult(T, T0, bool(ok), msg, rms, mean_abs, n_match, int(inl.sum()), sigma, score_before, score_after, obs, warnings, history, mt, residuals_before, r_after, prof)
+
+
+def cost_profiles(scenes, T, matches, f_scale=1.0, rot_deg: float = 1.0, trans_m: float = 0.1, n: int = 21) -> dict:
+    """Robust cost (Cauchy, fixed matches) along each of the 6 parameters around ``T``: a flat profile means the
+    parameter is poorly observed."""
+    out = {}
+    for i, name in enumerate(PARAM_NAMES):
+        span = np.radians(rot_deg) if i < 3 else trans_m
+        offs = np.linspace(-span, span, n)
+        cost = []
+        for o in offs:
+            x = np.zeros(6)
+            x[i] = o
+            r = _residual_fn(x, T, scenes, matches, False)
+            cost.append(float(np.sum(np.log1p((r / f_scale) ** 2))) if len(r) else np.nan)
+        out[name] = (offs, np.array(cost))
+    return out
+
+
+def _observability(scenes, matches, T, JtJ, n_match) -> dict:
+    warnings = []
+    normals = np.concatenate([m[2] for m in matches]) if n_match else np.zeros((0, 2))
+    if len(normals):
+        S = normals.T @ normals / len(normals)
+        ev = np.linalg.eigvalsh(S)
+        spread = float(ev[0] / max(ev[1], 1e-12))
+    else:
+        spread = 0.0
+    if n_match < 100:
+        warnings.append(f"only {n_match} edge matches: the result is weakly constrained")
+    if spread < 0.1:
+        warnings.append(f"edge directions are nearly all parallel (spread {spread:.3f} < 0.1): one rotation/translation direction is unobserved")
+    cond = float("inf")
+    weakest = None
+    if np.all(np.isfinite(JtJ)) and np.any(JtJ):
+        D = np.sqrt(np.maximum(np.diag(JtJ), 1e-30))
+        Jn = JtJ / np.outer(D, D)
+        w, V = np.linalg.eigh(Jn)
+        cond = float(w[-1] / max(w[0], 1e-30))
+        weakest = {PARAM_NAMES[i]: round(float(V[i, 0]), 3) for i in range(6)}
+        if cond > 1e4:
+            warnings.append(f"poorly conditioned (condition number {cond:.1e}); weakest direction {weakest}")
+    return {"direction_spread": spread, "condition_number": cond, "weakest_direction": weakest, "n_matches": int(n_match), "warnings": warnings}
