@@ -30,7 +30,7 @@ from radarcal.report import intrinsics as ri
 from radarcal.report import lidar_camera as rl
 from radarcal.report.html import Section, Table
 
-__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data"]
+__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data", "lidar_camera_data_from_result"]
 
 
 @dataclass
@@ -442,6 +442,33 @@ def lidar_camera_data(arrays: dict, meta: dict, T_final: np.ndarray | None = Non
     imgs = meta.get("images", meta.get("image"))
     d.image_files = [str(x) for x in (imgs if isinstance(imgs, list) else [imgs] if imgs else [])]
     d.warnings = [str(w) for w in meta.get("warnings") or []]
+    return d
+
+
+def lidar_camera_data_from_result(result: Any, points_lidar: np.ndarray | None = None, scene: int = 0) -> LidarCameraData:
+    """A :class:`LidarCameraData` straight from an edge-refinement result object (attributes ``T_cam_lidar``,
+    ``T_init``, ``matches`` with ``scene<k>_uv`` / ``scene<k>_line_point``, ``residuals_before/after``,
+    ``profiles`` {name: (offsets, costs)}, ``sigma``, ``warnings``), for notebooks that solve in-process."""
+    d = LidarCameraData(points_lidar=points_lidar)
+    d.T_final = np.asarray(result.T_cam_lidar, float)
+    d.T_init = None if getattr(result, "T_init", None) is None else np.asarray(result.T_init, float)
+    m = getattr(result, "matches", {}) or {}
+    d.edge_uv_lidar = m.get(f"scene{scene}_uv")
+    d.edge_uv_image = m.get(f"scene{scene}_line_point")
+    r_after = getattr(result, "residuals_after", None)
+    if r_after is not None and d.edge_uv_lidar is not None and scene == 0:
+        d.edge_residual_px = np.abs(np.asarray(r_after, float))[: len(d.edge_uv_lidar)]
+    elif r_after is not None:
+        d.edge_residual_px = np.abs(np.asarray(r_after, float))
+    rb = getattr(result, "residuals_before", None)
+    d.residual_before_px = None if rb is None else np.abs(np.asarray(rb, float))
+    prof = getattr(result, "profiles", {}) or {}
+    if all(n in prof for n in rl.PARAM_NAMES):
+        d.profile_offsets = np.stack([np.asarray(prof[n][0], float) for n in rl.PARAM_NAMES])
+        d.profile_costs = np.stack([np.asarray(prof[n][1], float) for n in rl.PARAM_NAMES])
+    sig = getattr(result, "sigma", None)
+    d.sigma6 = None if sig is None else np.asarray(sig, float).ravel()
+    d.warnings = [str(w) for w in getattr(result, "warnings", []) or []]
     return d
 
 

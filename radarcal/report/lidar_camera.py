@@ -80,9 +80,11 @@ def edge_matches_figure(image: np.ndarray | None, image_size: tuple[int, int], u
     w, h = image_size
     fig, ax = new_figure(8.0, 8.0 * h / w + 0.6)
     show_image(ax, image_size, image, alpha=0.6)
+    vmax = float(np.percentile(res, 98)) if res.size else 1.0
     lc = LineCollection(np.stack([a, b], axis=1), array=res, cmap="autumn_r", linewidths=1.2)
+    lc.set_clim(0.0, max(vmax, 1e-6))
     ax.add_collection(lc)
-    ax.plot(a[:, 0], a[:, 1], ".", ms=1.5, color="cyan", label="LiDAR edge (projected)")
+    ax.scatter(a[:, 0], a[:, 1], c=res, s=5, cmap="autumn_r", vmin=0.0, vmax=max(vmax, 1e-6), edgecolors="black", linewidths=0.2, label="LiDAR edge (projected)", zorder=3)
     fig.colorbar(lc, ax=ax, label="residual (px)", shrink=0.8)
     ax.legend(fontsize=8, loc="upper right")
     ax.set_title(f"{title}\n{len(res)} shown, median residual {np.median(res) if res.size else float('nan'):.2f} px", fontsize=10)

@@ -91,3 +91,9 @@ def test_intrinsics_notebook_opencv_stereo_chessboard(kernel_env, tmp_path, shar
 def test_field_notebook_generated(kernel_env, tmp_path):
     # field + picks + two error maps (LiDAR, ground) + minimap + error over time
     assert_figures(run_notebook("field_report.ipynb", tmp_path), 6)
+
+
+# --- lidar-camera -------------------------------------------------------------------------------------------------------
+def test_lidar_camera_notebook_generated(kernel_env, tmp_path):
+    # overlay before/after/truth, edge matches, residual histogram, cost profiles, σ table
+    assert_figures(run_notebook("lidar_camera_report.ipynb", tmp_path), 5)
