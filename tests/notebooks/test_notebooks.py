@@ -97,3 +97,23 @@ def test_field_notebook_generated(kernel_env, tmp_path):
 def test_lidar_camera_notebook_generated(kernel_env, tmp_path):
     # overlay before/after/truth, edge matches, residual histogram, cost profiles, σ table
     assert_figures(run_notebook("lidar_camera_report.ipynb", tmp_path), 5)
+
+
+@pytest.mark.shared
+def test_lidar_camera_notebook_mlcc(kernel_env, tmp_path, shared):
+    """Real Livox Mid-100 head + 1280x1024 camera: intrinsics from the data set, the reference T_cam_lidar perturbed by
+    3 deg / 10 cm as the start, the reference drawn and compared with."""
+    data = shared("mlcc_livox_mid100_scene2")
+    from radarcal.cli.main import main as cli
+    from radarcal.geometry import perturb_T
+
+    pair = json.loads((data / "calib" / "pairs_T_cam_lidar.json").read_text())["pairs"][0]
+    bundle = tmp_path / "calib.yaml"
+    assert cli(["bundle", "import", str(bundle), str(data / pair["intrinsics"]), "--camera", "cam0"]) == 0
+    T_ref = np.asarray(pair["T_cam_lidar"], float)
+    (tmp_path / "reference.json").write_text(json.dumps({"T_cam_lidar": T_ref.tolist()}))
+    T0 = perturb_T(T_ref, 3.0, 0.10, np.random.default_rng(0))
+    (tmp_path / "init.json").write_text(json.dumps({"T_cam_lidar": T0.tolist()}))
+    for k, v in {"BUNDLE": bundle, "IMAGE": data / pair["image"], "CLOUD": data / pair["cloud"], "INIT": tmp_path / "init.json", "REFERENCE": tmp_path / "reference.json"}.items():
+        kernel_env.setenv(f"RADARCAL_REPORT_{k}", str(v))
+    assert_figures(run_notebook("lidar_camera_report.ipynb", tmp_path), 4)
