@@ -143,6 +143,26 @@ def _read_image_file(name: str, base: Path | None) -> np.ndarray | None:
         return None
 
 
+def _read_cloud_from_meta(meta: dict, base: Path | None, *keys: str) -> np.ndarray | None:
+    for k in keys:
+        v = meta.get(k)
+        if isinstance(v, list):
+            v = v[0] if v else None
+        if not v:
+            continue
+        p = Path(v)
+        if not p.is_absolute() and base is not None:
+            p = base / p
+        if p.is_file():
+            try:
+                from radarcal.io import read_cloud
+
+                return read_cloud(p).points
+            except InputError:
+                return None
+    return None
+
+
 def _read_image_from_meta(meta: dict, base: Path | None, *keys: str) -> np.ndarray | None:
     for k in keys:
         v = meta.get(k)
@@ -665,6 +685,10 @@ def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, t
                 continue
             T_b = bundle.T(cam_name, lidar_name) if bundle.has_T(cam_name, lidar_name) else None
             img = _read_image_from_meta(meta, base, "image", "images")
+            if _get(arrays, meta, "points") is None:  # no subsample in the session: the cloud file it names
+                pts = _read_cloud_from_meta(meta, base, "cloud", "clouds")
+                if pts is not None:
+                    arrays = {**arrays, "points_lidar": pts}
             content.sections.append(lidar_camera_section(key, bundle.cameras[cam_name].camera, arrays, meta, T_b, img, content.skipped))
         elif kind == "field_pnp":
             cam_name = rest
