@@ -247,3 +247,30 @@ def test_stereo_section_per_pair_rms():
     bars = figs[0].axes[0].patches
     assert np.allclose([b.get_height() for b in bars], [0.1, 0.2, 0.3])
     assert [t.get_text() for t in figs[0].axes[0].get_xticklabels()] == ["l1.png / r1.png", "l2.png / r2.png", "l3.png / r3.png"]
+
+
+def test_lidar_camera_section_reads_files_named_by_the_session(tmp_path, capsys):
+    import cv2
+
+    from radarcal.io import write_pcd
+    from radarcal.report.build import build_report
+    from radarcal.bundle import load_bundle
+
+    rng = np.random.default_rng(5)
+    pts = np.c_[rng.uniform(3, 20, 3000), rng.uniform(-4, 4, 3000), rng.uniform(-1, 2, 3000)].astype(np.float32)
+    write_pcd(tmp_path / "cloud.pcd", pts)
+    cv2.imwrite(str(tmp_path / "img.png"), np.full((1024, 1280, 3), 90, np.uint8))
+    b = Bundle(path=tmp_path / "calib.yaml")
+    b.set_camera("cam0", CAM)
+    b.set_transform("cam0", "lidar0", T_CAM_LIDAR, method="edges")
+    save_session(b, "lidar_camera/cam0_lidar0", {"T_cam_lidar": T_CAM_LIDAR}, {"camera": "cam0", "lidar": "lidar0", "cloud": "cloud.pcd", "image": "img.png"})
+    save_bundle(b, b.path)
+    content = build_report(load_bundle(b.path))
+    sec = content.sections[-1]
+    figs = [it for it in sec.items if hasattr(it, "savefig")]
+    assert len(figs) == 1  # the overlay; matches, histogram and profiles are reported missing
+    ax = figs[0].axes[0]
+    uv, valid, _ = CAM.project_from(T_CAM_LIDAR, pts.astype(float))
+    assert len(ax.collections[0].get_offsets()) == int((valid & CAM.in_image(uv)).sum())
+    assert len(ax.images) == 1  # the image named by the session is drawn underneath
+    assert sum("skipped" in k for k in content.skipped) == 3
