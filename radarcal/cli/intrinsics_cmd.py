@@ -134,6 +134,9 @@ def _human_camera(s: dict) -> None:
     K = np.asarray(s["K"])
     sg = s["sigma"]
     typer.echo(f"camera {s['camera']}: {s['model']} {s['image_size'][0]}x{s['image_size'][1]}  RMS {s['rms_px']:.3f} px  (noise σ {s['noise_px']:.3f} px/coord)")
+    if s.get("refined_by"):
+        Km = np.asarray(s["mono"]["K"])
+        typer.echo(f"  intrinsics from the {s['refined_by']} (mono solve: fx={Km[0, 0]:.3f} fy={Km[1, 1]:.3f} cx={Km[0, 2]:.3f} cy={Km[1, 2]:.3f}, RMS {s['mono']['rms_px']:.3f} px)")
     typer.echo(f"  fx = {K[0, 0]:.3f} ± {sg['fx']:.3f}   fy = {K[1, 1]:.3f} ± {sg['fy']:.3f}")
     typer.echo(f"  cx = {K[0, 2]:.3f} ± {sg['cx']:.3f}   cy = {K[1, 2]:.3f} ± {sg['cy']:.3f}")
     dn = [k for k in sg if k not in ("fx", "fy", "cx", "cy")]
@@ -162,7 +165,7 @@ def _human_camera(s: dict) -> None:
         typer.echo(f"  warning: {w}")
 
 
-def _stereo(res0: IntrinsicsResult, res1: IntrinsicsResult, board: BoardSpec) -> tuple[StereoResult, list[tuple[str, str]]]:
+def _stereo(res0: IntrinsicsResult, res1: IntrinsicsResult, board: BoardSpec, joint: bool) -> tuple[StereoResult, list[tuple[str, str]]]:
     used0 = {res0.names[i]: k for k, i in enumerate(res0.view_index) if res0.calibration.view_used[k]}
     used1 = {res1.names[i]: k for k, i in enumerate(res1.view_index) if res1.calibration.view_used[k]}
     pairs = pair_by_name(res0.names, res1.names)
@@ -188,7 +191,7 @@ def _stereo(res0: IntrinsicsResult, res1: IntrinsicsResult, board: BoardSpec) ->
         names.append((a, b))
     if not names:
         raise InputError("--right", "no synchronised pair has the board in both images (pairing is by the number in the file names)")
-    return stereo_calibrate(res0.camera, res1.camera, objs, q0, q1), names
+    return stereo_calibrate(res0.camera, res1.camera, objs, q0, q1, refine_intrinsics=joint), names
 
 
 def intrinsics(
@@ -206,6 +209,7 @@ def intrinsics(
     stereo: bool = typer.Option(False, "--stereo", help="Stereo: SOURCE are the left images, --right the right ones."),
     right: list[str] = typer.Option(None, "--right", help="Right-camera images/folder/glob (repeatable); implies --stereo."),
     right_camera: str = typer.Option("cam1", "--right-camera", help="Name of the right camera in the bundle."),
+    fix_intrinsics: bool = typer.Option(False, "--fix-intrinsics", help="Stereo: keep the mono intrinsics (default: refine both jointly with T_cam1_cam0 over the pairs)."),
     workers: int = typer.Option(2, "--workers", help="Detection processes."),
     novelty: float = typer.Option(0.0, "--novelty", help="ROS novelty gate for still images (L1 in X/Y/Size/Skew; 0 = keep all). Videos always use 0.2."),
     no_crossval: bool = typer.Option(False, "--no-crossval", help="Skip the split-halves cross-validation."),
@@ -233,14 +237,14 @@ def intrinsics(
         views1, spec1, layout1, files1 = _collect(list(right), spec, workers, right_camera)
         res1 = _solve(views1, spec1, files1, model, not no_crossval, novelty, k_sigma)
         results.append((right_camera, res1, layout1, files1))
-        st, pair_names = _stereo(res0, res1, spec0 if spec.kind == "chessboard" else spec0)
+        st, pair_names = _stereo(res0, res1, spec0, not fix_intrinsics)
 
     summary = {"bundle": str(bundle), "cameras": []}
     all_files = [f for _, _, _, fs in results for f in fs]
     prov = Provenance(command=command_line(), inputs_sha256=hash_inputs(all_files, {"board": spec.__dict__, "model": model, "k_sigma": k_sigma}))
-    for name, res, lay, _files in results:
+    for idx, (name, res, lay, _files) in enumerate(results):
         s = _summary(name, res, lay)
-        summary["cameras"].append(s)
+        cam, rms, sigma = res.camera, res.calibration.rms_px, res.calibration.sigma
         extra = {
             "model": res.calibration.model,
             "noise_px": res.calibration.noise_px,
@@ -252,7 +256,16 @@ def intrinsics(
         }
         if res.crossval:
             extra["crossval"] = {k: v for k, v in res.crossval.summary().items() if k in ("diff_median_px", "sigma_median_px", "ratio_median", "consistent")}
-        b.set_camera(name, res.camera, rms_px=res.calibration.rms_px, sigma=res.calibration.sigma, provenance=prov, extra=extra)
+        if st is not None and not fix_intrinsics:  # the joint stereo solve refined these intrinsics: write those
+            s["mono"] = {"K": cam.K, "dist": cam.dist, "rms_px": rms, "sigma": sigma}
+            cam = st.camera0 if idx == 0 else st.camera1
+            sigma = st.sigma0 if idx == 0 else st.sigma1
+            rms = st.rms_px
+            s.update({"K": cam.K, "dist": cam.dist, "sigma": sigma, "rms_px": rms, "refined_by": f"joint stereo solve over {st.n_pairs} pairs"})
+            extra["refined_by"] = s["refined_by"]
+            extra["mono_rms_px"] = res.calibration.rms_px
+        summary["cameras"].append(s)
+        b.set_camera(name, cam, rms_px=rms, sigma=sigma, provenance=prov, extra=extra)
         save_session(b, f"intrinsics/{name}", _session_arrays(res), {"camera": name, "summary": s, "board": res.board.__dict__})
     if st is not None:
         b.set_transform(right_camera, camera, st.T_cam1_cam0, method="intrinsics --right (board pairs, intrinsics fixed)", residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)

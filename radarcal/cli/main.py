@@ -8,7 +8,7 @@ import sys
 import click
 import typer
 
-from radarcal.cli import bundle_cmd, field_pnp_cmd, intrinsics_cmd, synth_field_cmd, synth_lidar_camera_cmd
+from radarcal.cli import bundle_cmd, field_pnp_cmd, intrinsics_cmd, synth_board_cmd, synth_field_cmd, synth_lidar_camera_cmd
 from radarcal.cli import report_cmd
 from radarcal.errors import InputError
 
@@ -29,6 +29,7 @@ app.command("report")(report_cmd.report)
 # `radarcal synth <scene>`: ground-truth scene generators (one module per scene registers its command here)
 synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
 app.add_typer(synth_app, name="synth")
+synth_app.command("board")(synth_board_cmd.synth_board)
 synth_app.command("field")(synth_field_cmd.synth_field)
 synth_app.command("lidar-camera")(synth_lidar_camera_cmd.synth_lidar_camera)
 

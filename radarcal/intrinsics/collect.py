@@ -56,6 +56,19 @@ def expand_sources(sources: Iterable[str]) -> tuple[list[Path], list[Path]]:
     return uniq(images), uniq(videos)
 
 
+def _worker_init() -> None:
+    cv2.setNumThreads(1)  # parallelism is across images; OpenCV's own threads would only contend
+
+
+def _pool(workers: int) -> ProcessPoolExecutor:
+    """Workers from a clean ``forkserver`` (``spawn`` where unavailable): forking a process whose OpenCV/BLAS
+    thread pools have run can deadlock the child (seen here under pytest)."""
+    import multiprocessing as mp
+
+    method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
+    return ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method), initializer=_worker_init)
+
+
 def _detect_one(path: str, board: BoardSpec) -> ViewInput:
     data = np.fromfile(path, dtype=np.uint8) if os.path.isfile(path) else None
     if data is None:
@@ -94,7 +107,7 @@ def detect_files(paths: list[Path], board: BoardSpec, workers: int = 2, on_done:
             if on_done:
                 on_done(i + 1, len(names))
         return out  # type: ignore[return-value]
-    with ProcessPoolExecutor(max_workers=workers) as ex:
+    with _pool(workers) as ex:
         futs = {ex.submit(_detect_one, n, board): i for i, n in enumerate(names)}
         for k, f in enumerate(as_completed(futs), 1):
             i = futs[f]
@@ -133,7 +146,7 @@ def sample_video(path: Path, board: BoardSpec, max_candidates: int = 150, novelt
     if not frames:
         raise InputError(path, "no frames could be decoded")
     if workers > 1 and len(frames) > 1:
-        with ProcessPoolExecutor(max_workers=workers) as ex:
+        with _pool(workers) as ex:
             dets = list(ex.map(detect_board, [f for _, f in frames], [board] * len(frames), chunksize=4))
     else:
         dets = [detect_board(f, board) for _, f in frames]

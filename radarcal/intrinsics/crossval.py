@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from radarcal.intrinsics._blas import single_thread_blas
 from radarcal.intrinsics.solve import Calibration, SolveError, calibrate, projection_uncertainty
 
 __all__ = ["CrossValidation", "ModelChoice", "split_halves", "projection_difference", "cross_validate", "choose_model"]
@@ -87,6 +88,7 @@ def projection_difference(cam_a, cam_b, u: np.ndarray, v: np.ndarray, weights: n
     return d.reshape(len(v), len(u))
 
 
+@single_thread_blas
 def cross_validate(object_points, image_points, image_size, model: str, nx: int = 30, ratio_limit: float = 2.5, **calib_kw) -> CrossValidation:
     ia, ib = split_halves(len(object_points))
     cal_a = calibrate([object_points[i] for i in ia], [image_points[i] for i in ia], image_size, model, **calib_kw)
@@ -100,6 +102,7 @@ def cross_validate(object_points, image_points, image_size, model: str, nx: int 
     return CrossValidation(model, cal_a, cal_b, ua.u, ua.v, diff, sig, rmed, float(np.nanmedian(diff)), float(np.nanmedian(sig)), bool(rmed < ratio_limit))
 
 
+@single_thread_blas
 def choose_model(object_points, image_points, image_size, candidates=("pinhole5", "pinhole8", "fisheye"), rms_slack: float = 0.10, **kw) -> tuple[ModelChoice, dict[str, Calibration], dict[str, CrossValidation]]:
     """Try each candidate (full solve + cross-validation) and pick the simplest adequate one (see module doc)."""
     cals: dict[str, Calibration] = {}

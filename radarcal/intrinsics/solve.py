@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from radarcal.camera import Camera
+from radarcal.intrinsics._blas import single_thread_blas
 
 __all__ = [
     "MODELS",
@@ -237,6 +238,7 @@ def _normal_matrix(Ji: np.ndarray, Jp: np.ndarray, vidx_rows: np.ndarray, n_view
 
 
 # --- the full calibration ------------------------------------------------------------------------------------------
+@single_thread_blas
 def calibrate(
     object_points: list[np.ndarray],
     image_points: list[np.ndarray],
@@ -355,6 +357,7 @@ def _finish(cam, model, rvecs, tvecs, obj, img, res, inl, used, reasons, it) -> 
 
 
 # --- projection uncertainty -------------------------------------------------------------------------------------
+@single_thread_blas
 def projection_uncertainty(cal: Calibration, nx: int = 40, ny: int | None = None, distance_m: float | None = None, threshold_px: float | None = None) -> UncertaintyMap:
     """Worst-direction σ (px) of the projection of a fixed world point, on an ``nx`` x ``ny`` pixel grid.
 
