@@ -46,6 +46,7 @@ def field_pnp(
     ransac_px: float = typer.Option(8.0, "--ransac-px", help="Outlier threshold (px) when more than 4 picks are given."),
     grid: float = typer.Option(1.0, "--grid", help="Error-map cell size (m) for the PNG and the session."),
     error_map_png: Path = typer.Option(None, "--error-map", help="Write the localisation error map as a PNG."),
+    overlay: Path = typer.Option(None, "--overlay", help="With --image: write the image with the field outline, raised areas and all landmarks projected by the solved pose."),
     depth: str = typer.Option("auto", "--depth", help="Depth source for the printed map: auto (LiDAR if one is chained to the camera) | lidar | ground."),
     lidar: str = typer.Option(None, "--lidar", help="LiDAR sensor name (default: any LiDAR chained to the camera)."),
     as_json: bool = JsonOpt,
@@ -58,6 +59,8 @@ def field_pnp(
     from radarcal.pnp.field_pnp import FieldPnPError, PnPOptions, solve_field_pnp
     from radarcal.pnp.picks import DEFAULT_PICKS, has_display, pick_landmarks, read_picks, write_picks
 
+    if overlay is not None and image is None:
+        raise InputError("--overlay", "needs --image (the overlay is drawn on it)")
     if depth not in ("auto", "lidar", "ground"):
         raise InputError("--depth", f"expected auto, lidar or ground, got {depth!r}")
     if side not in DEFAULT_PICKS:
@@ -124,7 +127,6 @@ def field_pnp(
     prov = Provenance(command=command_line(), inputs_sha256=hash_inputs([picks_src] + ([image] if image else []), extra={"field": fm.to_dict(), "click_sigma": click_sigma, "max_rms": max_rms, "ransac_px": ransac_px}))
     b.set_transform(camera, "field", res.T_cam_field, method=f"field-pnp ({res.method}) on {fm.name}", residual={"rms_px": res.rms_px, "per_point_px": per_point, "n_picks": len(names), "n_inliers": int(res.inliers.sum()), "outliers": [n for n, k in zip(names, res.inliers) if not k]}, sigma=res.sigma, provenance=prov)
     b.field_model = fm.to_dict()
-    b.set_sensor("field", type="field", model=fm.name)
     save_session(
         b,
         f"field_pnp/{camera}",
@@ -150,6 +152,16 @@ def field_pnp(
 
         save_error_map_png(error_map_png, em, fm, res.camera_position, names, title=f"{camera} on {fm.name}: 1σ localisation error for {click_sigma:g} px clicks, {pixel_sigma:g} px detections")
 
+    if overlay is not None:
+        import cv2
+
+        from radarcal.pnp.figures import draw_overlay
+
+        over = draw_overlay(read_image(image), cam, res.T_cam_field, fm, names, res.uv)
+        overlay.parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(overlay), over):
+            raise InputError(overlay, "cannot write the overlay image (unknown extension or unwritable folder)")
+
     # --- report ----------------------------------------------------------------------------------------------
     from radarcal import geometry
 
@@ -171,6 +183,7 @@ def field_pnp(
         "error_map": {"lidar": em.stats("lidar"), "ground": em.stats("ground"), "grid_m": grid, "xs": em.xs, "ys": em.ys, "sigma_lidar": em.sigma_lidar, "sigma_ground": em.sigma_ground},
         "bundle": str(bundle),
         "error_map_png": str(error_map_png) if error_map_png else None,
+        "overlay": str(overlay) if overlay else None,
     }
 
     def human(s: dict) -> None:
@@ -194,5 +207,7 @@ def field_pnp(
                 typer.echo(f"  {name:<16} median {st['median_m']:.3f} m, 90% {st['p90_m']:.3f} m, max {st['max_m']:.3f} m over {st['visible_cells']} visible {grid:g} m cells")
         if error_map_png:
             typer.echo(f"error map: {error_map_png}")
+        if overlay:
+            typer.echo(f"overlay: {overlay}")
 
     emit(summary, as_json, human)

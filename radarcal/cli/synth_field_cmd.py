@@ -30,10 +30,12 @@ def synth_field(
     frames: int = typer.Option(300, "--frames", help="Camera frames (30 fps)."),
     seed: int = typer.Option(0, "--seed", help="Random seed (the output is deterministic per seed)."),
     robots: int = typer.Option(6, "--robots", help="Number of robots (0..12)."),
+    station: str = typer.Option("red", "--station", help="Whose radar station: red (behind x = 0) or blue (behind x = 28)."),
     lidar_gap: str = typer.Option(None, "--lidar-gap", help="START:DURATION seconds without LiDAR clouds (ground-fallback test)."),
     lidar_points: int = typer.Option(10_000, "--lidar-points", help="Points per 0.1 s LiDAR frame (Mid-70: ~10 k)."),
     image_scale: float = typer.Option(0.5, "--image-scale", help="Render at this fraction of 1280x1024 (faster, smaller), resized to full size."),
     jpeg_quality: int = typer.Option(70, "--jpeg-quality", help="JPEG quality 10..100."),
+    image_every: int = typer.Option(1, "--image-every", help="Write an image for every k-th frame only (smaller replay; detections/truth stay per frame)."),
     det_jitter: float = typer.Option(0.0, "--det-jitter", help="σ (px) of jitter on detection box edges."),
     det_dropout: float = typer.Option(0.0, "--det-dropout", help="Probability of a missed detection per robot and frame."),
     as_json: bool = JsonOpt,
@@ -50,6 +52,10 @@ def synth_field(
         raise InputError("--image-scale", f"expected 0.05..1, got {image_scale}")
     if not 10 <= jpeg_quality <= 100:
         raise InputError("--jpeg-quality", f"expected 10..100, got {jpeg_quality}")
+    if station not in ("red", "blue"):
+        raise InputError("--station", f"expected red or blue, got {station!r}")
+    if image_every < 1:
+        raise InputError("--image-every", f"must be >= 1, got {image_every}")
     if lidar_points < 1:
         raise InputError("--lidar-points", f"must be >= 1, got {lidar_points}")
     if not 0 <= det_dropout <= 1 or det_jitter < 0:
@@ -58,11 +64,11 @@ def synth_field(
     for req in ("red_outpost", "blue_outpost", "red_base", "blue_base"):
         if req not in fm.landmarks:
             raise InputError(field, f"field model lacks the landmark {req!r} (needed by radarcal run)")
-    cfg = FieldSceneConfig(frames=frames, seed=seed, robots=robots, lidar_gap=_parse_gap(lidar_gap), lidar_points=lidar_points, image_scale=image_scale, jpeg_quality=jpeg_quality, det_jitter_px=det_jitter, det_dropout=det_dropout)
+    cfg = FieldSceneConfig(frames=frames, seed=seed, robots=robots, station=station, lidar_gap=_parse_gap(lidar_gap), lidar_points=lidar_points, image_scale=image_scale, jpeg_quality=jpeg_quality, image_every=image_every, det_jitter_px=det_jitter, det_dropout=det_dropout)
     summary = write_field_replay(out, fm, cfg, generator=command_line(), progress=lambda it, description="": progress(it, description, enabled=not as_json))
 
     def human(s: dict) -> None:
-        typer.echo(f"wrote {s['out']}: {s['frames']} frames, {s['clouds']} clouds ({s['cloud_points']} points), {s['robots']} robots, "
+        typer.echo(f"wrote {s['out']}: {s['frames']} frames ({s['images']} images), {s['clouds']} clouds ({s['cloud_points']} points), {s['robots']} robots, "
                    f"{s['visible_boxes']} visible robot boxes, {s['bytes'] / 1e6:.1f} MB")
         typer.echo(f"  landmarks in view: {', '.join(s['landmarks_in_image'])}")
 

@@ -25,7 +25,7 @@ from radarcal.camera import Camera
 from radarcal.field import FieldModel
 from radarcal.pnp.field_pnp import FieldPnPError, PnPOptions, params_to_pose, pose_to_params, solve_field_pnp
 
-__all__ = ["ErrorMap", "error_map", "localise_lidar", "localise_ground", "localisation_sigma", "monte_carlo", "MonteCarloResult"]
+__all__ = ["ErrorMap", "error_map", "ground_visible", "localise_lidar", "localise_ground", "localisation_sigma", "monte_carlo", "MonteCarloResult"]
 
 
 @dataclass
@@ -103,10 +103,22 @@ def localisation_sigma(camera: Camera, T_cam_field: np.ndarray, cov_pose: np.nda
     return np.where(ok, s, np.nan)
 
 
+def ground_visible(field_model: FieldModel, camera_position: np.ndarray, targets: np.ndarray, tol: float = 0.05) -> np.ndarray:
+    """(N,) True where the straight line from the camera to the target is not blocked by the field's surface solid
+    (a ground point behind a highland cannot be reached by the ground-ray fallback)."""
+    P = np.asarray(targets, float).reshape(-1, 3)
+    C = np.asarray(camera_position, float).reshape(1, 3)
+    d = P - C
+    dist = np.linalg.norm(d, axis=1)
+    t, _ = field_model.ray_hits(np.broadcast_to(C, d.shape), d / dist[:, None])
+    return ~(np.isfinite(t) & (t < dist - tol))
+
+
 def error_map(camera: Camera, T_cam_field: np.ndarray, cov_pose: np.ndarray, field_model: FieldModel, step: float = 1.0, pixel_sigma: float = 1.0, range_sigma: float = 0.02, target_height: float = 0.0) -> ErrorMap:
     """:func:`localisation_sigma` on a grid over the field (cell centres ``step`` apart), both depth sources.
 
-    Targets are on the surface (+ ``target_height``); cells the camera does not see are NaN."""
+    Targets are on the surface (+ ``target_height``); cells the camera does not see are NaN, and so are the
+    ground-fallback cells whose surface point is hidden behind a raised area (the ray would land on the area)."""
     L, W = field_model.size
     xs = np.arange(step / 2, L, step)
     ys = np.arange(step / 2, W, step)
@@ -114,7 +126,9 @@ def error_map(camera: Camera, T_cam_field: np.ndarray, cov_pose: np.ndarray, fie
     xy = np.stack([X.ravel(), Y.ravel()], 1)
     P = np.column_stack([xy, field_model.surface_z(xy) + target_height])
     sl = localisation_sigma(camera, T_cam_field, cov_pose, P, pixel_sigma, range_sigma, "lidar").reshape(X.shape)
-    sg = localisation_sigma(camera, T_cam_field, cov_pose, P, pixel_sigma, range_sigma, "ground").reshape(X.shape)
+    sg = localisation_sigma(camera, T_cam_field, cov_pose, P, pixel_sigma, range_sigma, "ground")
+    C = geometry.invert_T(T_cam_field)[:3, 3]
+    sg = np.where(ground_visible(field_model, C, P), sg, np.nan).reshape(X.shape)
     return ErrorMap(xs, ys, sl, sg, pixel_sigma, range_sigma, target_height)
 
 

@@ -109,7 +109,7 @@ def _refine(camera: Camera, x0: np.ndarray, P: np.ndarray, uv: np.ndarray) -> tu
     from scipy.optimize import least_squares
 
     def fun(x):
-        u, valid = _project(camera, x, P)
+        u, _ = _project(camera, x, P)  # a point behind the camera has NaN pixels -> a large finite residual
         r = (u - uv).ravel()
         return np.where(np.isfinite(r), r, 1e6)
 
@@ -118,7 +118,10 @@ def _refine(camera: Camera, x0: np.ndarray, P: np.ndarray, uv: np.ndarray) -> tu
         x = sol.x
     except (ValueError, np.linalg.LinAlgError):
         x = x0
-    r = fun(x).reshape(-1, 2)
+    u, valid = _project(camera, x, P)
+    if not np.all(valid):
+        return x, float("inf")
+    r = u - uv
     return x, float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
 
 
@@ -150,7 +153,17 @@ def _candidate_params(camera: Camera, P: np.ndarray, uv: np.ndarray) -> list[np.
     xy = _normalised(camera, uv)
     cands = _closed_form(P, xy, cv2.SOLVEPNP_SQPNP)
     if _coplanar(P):
-        cands += _closed_form(P, xy, cv2.SOLVEPNP_IPPE)
+        # IPPE in OpenCV 5.0 returns a wrong pose for a plane off z = 0 (measured: 144 deg off for the central
+        # highland's top at z = 0.6 m), so solve in a plane-aligned frame and map back
+        c = P.mean(0)
+        Vt = np.linalg.svd(P - c)[2]
+        if np.linalg.det(Vt) < 0:
+            Vt[2] *= -1
+        Q = (P - c) @ Vt.T
+        Q[:, 2] = 0.0
+        T_plane_field = geometry.make_T(Vt, -Vt @ c)
+        for x in _closed_form(Q, xy, cv2.SOLVEPNP_IPPE):
+            cands.append(pose_to_params(params_to_pose(x) @ T_plane_field))
     triples = list(itertools.combinations(range(len(P)), 3))
     if len(triples) > 20:
         triples = triples[:: max(1, len(triples) // 20)]
@@ -265,7 +278,8 @@ def solve_field_pnp(camera: Camera, p_field: np.ndarray, uv: np.ndarray, names: 
         ok = [c for c in cands if c["plausible"]]
         if not ok:
             best = min(cands, key=lambda c: c["rms_px"])
-            raise FieldPnPError(f"camera pose implausible: {best['why_not']} (best fit {best['rms_px']:.1f} px) — are the picks in the right order / the right landmarks?")
+            fit = f" (best fit {best['rms_px']:.1f} px)" if np.isfinite(best["rms_px"]) else ""
+            raise FieldPnPError(f"camera pose implausible: {best['why_not']}{fit} — are the picks in the right order / the right landmarks?")
         ok.sort(key=lambda c: c["rms_px"])
         best = ok[0]
         if n == 4 or inl.all():

@@ -75,7 +75,7 @@ def has_display() -> bool:
     return True
 
 
-def pick_landmarks(image_bgr: np.ndarray, names: list[str], field_model=None) -> tuple[list[str], np.ndarray]:  # pragma: no cover - needs a person
+def pick_landmarks(image_bgr: np.ndarray, names: list[str], field_model=None) -> tuple[list[str], np.ndarray]:
     """Interactive picker: shows the image, asks for each landmark in turn (a minimap marks where it is on the field),
     a zoom panel follows the mouse for sub-pixel clicks (click in either panel). Keys: ``s`` skip (landmark not
     visible), ``u`` undo, ``q`` finish. Returns the picked names and pixels (pixel centres at integers)."""

@@ -31,6 +31,8 @@ __all__ = [
     "robot_states",
     "scene_boxes",
     "raycast",
+    "object_names",
+    "object_kinds",
     "livox_rosette_dirs",
     "simulate_lidar",
     "box_corners",
@@ -70,9 +72,11 @@ class FieldSceneConfig:
     lidar_gap: tuple[float, float] | None = None  # (start s, duration s): no clouds in that window
     image_scale: float = 0.5             # render at this fraction of the resolution, then resize to full size
     jpeg_quality: int = 70
+    image_every: int = 1                 # write an image for every k-th camera frame only (size); detections every frame
     det_jitter_px: float = 0.0           # σ of Gaussian jitter on detection box edges
     det_dropout: float = 0.0             # probability that a visible robot has no detection in a frame
     speed: float = 1.5                   # typical robot speed, m/s
+    station: str = "red"                 # whose radar station: red (x < 0 end) or blue (x > 28 end)
 
 
 @dataclass
@@ -117,8 +121,9 @@ class SceneBoxes:
 
 
 # --- rig -------------------------------------------------------------------------------------------------------
-def default_rig(field_model: FieldModel, rng: np.random.Generator | None = None) -> Rig:
-    """Red radar station: camera 2.5 m high at the red end of the field, looking over it; LiDAR mounted just below.
+def default_rig(field_model: FieldModel, rng: np.random.Generator | None = None, station: str = "red") -> Rig:
+    """Radar station: camera 2.5 m high at its own end of the field (red: x < 0, blue: x > 28, the central mirror),
+    looking over the field; LiDAR mounted just below.
 
     1280x1024, fx = fy = 1100 px (≈ 5.3 mm lens on 4.8 µm pixels, ±30° horizontal), mild radtan distortion.
     ``rng`` adds a small random variation of the mounting (seeded scenes differ a little)."""
@@ -135,6 +140,10 @@ def default_rig(field_model: FieldModel, rng: np.random.Generator | None = None)
     R_field_body = geometry.rpy_deg_to_R(np.rad2deg(roll), np.rad2deg(pitch), np.rad2deg(yaw))
     R_body_cam = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
     T_field_cam = geometry.make_T(R_field_body @ R_body_cam, pos)
+    if station == "blue":  # the field is centrally symmetric: turn the red station 180° about the centre's vertical
+        T_field_cam = np.array([[-1.0, 0, 0, L], [0, -1.0, 0, W], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]) @ T_field_cam
+    elif station != "red":
+        raise ValueError(f"station: expected red or blue, got {station!r}")
     # LiDAR (x forward, y left, z up) 9 cm below, 4 cm left of, 3 cm behind the camera, tilted ~1.2° against it
     R_cam_lidar = R_body_cam.T @ geometry.rpy_deg_to_R(0.6, -1.0, 0.8)
     T_cam_lidar = geometry.make_T(R_cam_lidar, np.array([-0.04, 0.09, -0.03]))
@@ -142,13 +151,15 @@ def default_rig(field_model: FieldModel, rng: np.random.Generator | None = None)
 
 
 # --- robots ----------------------------------------------------------------------------------------------------
-def make_robots(field_model: FieldModel, n: int, rng: np.random.Generator, speed: float = 1.5) -> list[RobotSpec]:
-    """``n`` robots (blue ones first: a red radar watches the enemy) with smooth random paths over the field."""
+def make_robots(field_model: FieldModel, n: int, rng: np.random.Generator, speed: float = 1.5, station: str = "red") -> list[RobotSpec]:
+    """``n`` robots (the enemy's first: a red station watches blue robots) with smooth random paths over the field."""
     if not 0 <= n <= len(_ROBOT_ORDER):
         raise ValueError(f"robots: expected 0..{len(_ROBOT_ORDER)}, got {n}")
     L, W = field_model.size
     out = []
-    for label in _ROBOT_ORDER[:n]:
+    swap = {"red": "blue", "blue": "red"}
+    order = _ROBOT_ORDER if station == "red" else ["_".join([swap[lb.split("_")[0]], lb.split("_")[1]]) for lb in _ROBOT_ORDER]
+    for label in order[:n]:
         rid = int(label.split("_")[1])
         K = 3
         omega = rng.uniform(0.08, 0.35, K)
@@ -157,6 +168,8 @@ def make_robots(field_model: FieldModel, n: int, rng: np.random.Generator, speed
         v = np.sqrt(np.sum((amp * omega[:, None]) ** 2) / 2)
         amp *= min(1.0, speed / max(v, 1e-6)) if v > speed else 1.0
         center = np.array([rng.uniform(0.25 * L, 0.85 * L), rng.uniform(0.3 * W, 0.7 * W)])
+        if station == "blue":
+            center = np.array([L, W]) - center
         out.append(RobotSpec(label, ROBOT_TYPES[rid], center, amp, omega, rng.uniform(0, 2 * np.pi, (K, 2))))
     return out
 
@@ -493,8 +506,8 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
     (out / "clouds").mkdir(parents=True, exist_ok=True)
     ss = np.random.SeedSequence(config.seed)
     rng_rig, rng_rob, rng_lidar, rng_det = (np.random.default_rng(s) for s in ss.spawn(4))
-    rig = default_rig(field_model, rng_rig)
-    robots = make_robots(field_model, config.robots, rng_rob, config.speed)
+    rig = default_rig(field_model, rng_rig, config.station)
+    robots = make_robots(field_model, config.robots, rng_rob, config.speed, config.station)
     cam = rig.camera
     T_cam_field = geometry.invert_T(rig.T_field_cam)
     track = progress or (lambda it, **_: it)
@@ -502,9 +515,14 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
     # landmarks' true pixels
     names = list(field_model.landmarks)
     P = field_model.landmark_array(names)
-    uv, valid, z = cam.project_from(T_cam_field, P)
+    uv, valid, _ = cam.project_from(T_cam_field, P)
     inimg = valid & cam.in_image(uv)
     landmark_px = {n: [float(uv[i, 0]), float(uv[i, 1])] for i, n in enumerate(names) if inimg[i]}
+    # landmarks hidden behind the field solid or a structure (a person could not click them)
+    dvec = P - rig.T_field_cam[:3, 3]
+    dist = np.linalg.norm(dvec, axis=1)
+    t_hit, _ = raycast(field_model, scene_boxes(field_model), rig.T_field_cam[:3, 3][None], dvec / dist[:, None])
+    hidden = [n for i, n in enumerate(names) if inimg[i] and np.isfinite(t_hit[i]) and t_hit[i] < dist[i] - 0.05]
 
     # camera frames
     n = config.frames
@@ -518,10 +536,15 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
     for f in track(range(n), description="frames"):
         fname = f"{f:06d}.jpg"
         boxes_f = scene_boxes(field_model, robots, p_all[f], yaw_all[f])
-        img = render_frame(field_model, rig, background, SceneBoxes(boxes_f.center[len(static):], boxes_f.size[len(static):], boxes_f.yaw[len(static):], boxes_f.names[len(static):], boxes_f.kinds[len(static):], boxes_f.colors[len(static):]), config.image_scale)
-        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(config.jpeg_quality)])
-        (out / "images" / fname).write_bytes(buf.tobytes())
-        img_times.append((fname, t_img[f]))
+        if f % max(1, config.image_every) == 0:
+            ns = len(static)
+            robots_f = SceneBoxes(boxes_f.center[ns:], boxes_f.size[ns:], boxes_f.yaw[ns:], boxes_f.names[ns:], boxes_f.kinds[ns:], boxes_f.colors[ns:])
+            img = render_frame(field_model, rig, background, robots_f, config.image_scale)
+            ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(config.jpeg_quality)])
+            if not ok:
+                raise RuntimeError(f"JPEG encoding failed for frame {f}")
+            (out / "images" / fname).write_bytes(buf.tobytes())
+            img_times.append((fname, t_img[f]))
         rob_truth, dets = [], []
         for k, r in enumerate(robots):
             c, size, yw = p_all[f, k], np.asarray(r.size), yaw_all[f, k]
@@ -588,6 +611,7 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
         "T_field_cam0": rig.T_field_cam.tolist(),
         "T_field_lidar0": rig.T_field_lidar.tolist(),
         "landmark_pixels": landmark_px,
+        "landmarks_hidden": hidden,
         "landmarks_field": {k: v.tolist() for k, v in field_model.landmarks.items()},
         "robots": [r.to_dict() for r in robots],
         "noise": {"lidar_range_sigma_m": config.lidar_range_sigma, "det_jitter_px": config.det_jitter_px, "det_dropout": config.det_dropout, "image_jpeg_quality": config.jpeg_quality},
@@ -596,7 +620,7 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
         "field_model": field_model.to_dict(),
     }
     (out / "truth.json").write_text(json.dumps(truth, indent=1))
-    meta = {"camera": "cam0", "lidar": "lidar0", "field": field_model.name, "fps": config.fps, "lidar_hz": config.lidar_hz, "n_frames": n, "seed": config.seed, "generator": generator}
+    meta = {"camera": "cam0", "lidar": "lidar0", "station": config.station, "field": field_model.name, "fps": config.fps, "lidar_hz": config.lidar_hz, "n_frames": n, "seed": config.seed, "generator": generator}
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
-    return {"out": str(out), "frames": n, "clouds": len(cloud_times), "robots": len(robots), "visible_boxes": n_vis, "cloud_points": n_points_total, "landmarks_in_image": sorted(landmark_px), "bytes": size}
+    return {"out": str(out), "frames": n, "images": len(img_times), "clouds": len(cloud_times), "robots": len(robots), "visible_boxes": n_vis, "cloud_points": n_points_total, "landmarks_in_image": sorted(landmark_px), "bytes": size}

@@ -123,6 +123,10 @@ def test_replay_files_load_and_match_truth(replay, fm):
     assert not np.any((ts >= 0.2) & (ts < 0.4)) and len(ts) == 3  # 16 frames = 0.53 s -> clouds at 0, 0.1, 0.4, 0.5 minus ...
     cloud = read_cloud(out / "clouds" / times[0][0])
     assert cloud.points.shape[0] > 3000 and cloud.intensity is not None
+    o3d = pytest.importorskip("open3d")
+    t = o3d.t.io.read_point_cloud(str(out / "clouds" / times[0][0]))
+    np.testing.assert_array_equal(t.point.positions.numpy(), cloud.points)
+    np.testing.assert_array_equal(t.point.intensity.numpy().ravel(), cloud.intensity)
 
 
 def test_clouds_on_disk_hit_ground_or_robots(replay, fm):
@@ -198,3 +202,18 @@ def test_deterministic_per_seed(tmp_path, fm):
         assert (a / rel).read_bytes() == (b / rel).read_bytes(), rel
     assert (a / "truth.jsonl").read_bytes() != (c / "truth.jsonl").read_bytes()
     assert (a / "clouds/000000.pcd").read_bytes() != (c / "clouds/000000.pcd").read_bytes()
+
+
+def test_cli_writes_replay_and_rejects_bad_options(tmp_path, capsys):
+    from radarcal.cli.main import main
+
+    out = tmp_path / "r"
+    code = main(["synth", "field", str(out), "--frames", "3", "--robots", "2", "--lidar-points", "300", "--image-scale", "0.1", "--lidar-gap", "0:0.05", "--image-every", "2", "--json"])
+    s = json.loads(capsys.readouterr().out)
+    assert code == 0 and s["frames"] == 3 and s["images"] == 2 and s["clouds"] == 0  # 3 frames = 0.1 s -> one cloud at t = 0, in the gap
+    assert (out / "meta.json").is_file() and len((out / "detections.jsonl").read_text().splitlines()) == 3
+    assert sorted(p.name for p in (out / "images").glob("*.jpg")) == ["000000.jpg", "000002.jpg"]
+    assert (out / "images" / "times.csv").read_text().split() == ["file,t", "000000.jpg,0.000000", "000002.jpg,0.066667"]
+    assert main(["synth", "field", str(tmp_path / "x"), "--lidar-gap", "soon"]) == 2
+    assert "--lidar-gap" in capsys.readouterr().err
+    assert main(["synth", "field", str(tmp_path / "x"), "--robots", "20"]) == 2
