@@ -101,8 +101,8 @@ def _edges_one_grid(P, tree, voxel, shift, min_points, max_plane_rms, angle_rang
     nrm_all = np.zeros((len(uk), 3))
     nrm_all[ok] = V[:, :, 0]
     res = np.abs(np.sum(Q * nrm_all[inv], 1))
-    thr = np.maximum(2.5 * np.sqrt(np.maximum(np.where(ok, 0, 1) * 0 + np.bincount(inv, res * res, len(uk)) / cnt, 0)), 2 * max_plane_rms / 2.5)
-    inl = res < np.minimum(thr[inv], 2 * max_plane_rms)
+    noise = max(float(np.median(np.sqrt(np.maximum(w[:, 0], 0)))) if len(w) else 0.02, 0.005)  # typical plane thickness
+    inl = res < 2.5 * noise
     cnt2 = np.bincount(inv, inl.astype(float), len(uk))
     S1 = np.stack([np.bincount(inv, P[:, a] * inl, len(uk)) for a in range(3)], 1)
     mean = S1 / np.maximum(cnt2, 1)[:, None]

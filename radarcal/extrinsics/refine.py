@@ -49,6 +49,8 @@ class RefineOptions:
     coarse_step_deg: float = 1.0
     fix_translation: bool = False
     min_matches: int = 60
+    rotation_only_stages: int = 2  # the first (coarsest) radii solve rotation only
+    translation_starts_m: float = 0.0  # extra starts with the camera centre moved +-this along each axis (0: none)
     n_starts: int = 3  # distinct coarse-search minima refined in full (plus the initial guess itself)
 
 
@@ -190,7 +192,7 @@ def _run_stages(scenes, T, o):
     converged_stage = False
     for si, radius in enumerate(o.radii_px):
         f_scale = o.loss_scale_px if radius == o.radii_px[-1] else max(o.loss_scale_px, radius / 4)
-        rot_only = o.fix_translation or (si < len(o.radii_px) - 2)
+        rot_only = o.fix_translation or si < o.rotation_only_stages
         converged_stage = False
         for it in range(o.max_rematch):
             matches = [match_edges(sc, T, radius, o.k_neighbours, o.max_angle_deg) for sc in scenes]
@@ -224,6 +226,13 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
         for Tc, sc_ in starts:
             history.append({"stage": "coarse-rotation", "score": sc_, "rot_change_deg": geometry.pose_error(Tc, T0)[0]})
         starts = [T0] + [t for t, _ in starts]
+        if o.translation_starts_m > 0 and not o.fix_translation:
+            Tb = starts[1]
+            for ax in range(3):
+                for sg in (-1, 1):
+                    Tt = Tb.copy()
+                    Tt[ax, 3] += sg * o.translation_starts_m
+                    starts.append(Tt)
     else:
         starts = [T0]
     matches0 = [match_edges(sc, T0, o.radii_px[-1], o.k_neighbours, o.max_angle_deg) for sc in scenes]
