@@ -70,8 +70,9 @@ def assert_figures(pngs: list[bytes], at_least: int) -> None:
 
 # --- intrinsics ---------------------------------------------------------------------------------------------------------
 def test_intrinsics_notebook_generated(kernel_env, tmp_path):
-    # parameter table, per-view, vectors, histogram, coverage, uncertainty, distortion, cross-validation, vs truth
-    assert_figures(run_notebook("intrinsics_report.ipynb", tmp_path), 9)
+    # rendered board images -> radarcal intrinsics -> parameter table, per-view, vectors (all + worst view over its
+    # image), histogram, coverage, uncertainty, distortion, cross-validation, solved vs true camera
+    assert_figures(run_notebook("intrinsics_report.ipynb", tmp_path), 10)
 
 
 @pytest.mark.shared
