@@ -8,7 +8,7 @@ import sys
 import click
 import typer
 
-from radarcal.cli import bundle_cmd, field_pnp_cmd, intrinsics_cmd, synth_board_cmd, synth_field_cmd, synth_lidar_camera_cmd
+from radarcal.cli import bundle_cmd, field_pnp_cmd, intrinsics_cmd, lidar_camera_cmd, synth_board_cmd, synth_field_cmd, synth_lidar_camera_cmd
 from radarcal.cli import report_cmd
 from radarcal.errors import InputError
 
@@ -23,6 +23,7 @@ def _root(debug: bool = typer.Option(False, "--debug", help="Show tracebacks on 
 
 app.add_typer(bundle_cmd.app, name="bundle")
 app.command("intrinsics")(intrinsics_cmd.intrinsics)
+app.command("lidar-camera")(lidar_camera_cmd.lidar_camera)
 app.command("field-pnp")(field_pnp_cmd.field_pnp)
 app.command("report")(report_cmd.report)
 

@@ -19,13 +19,13 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["LidarEdges", "ImageEdges", "lidar_edges", "image_edges", "edge_score"]
+__all__ = ["LidarEdges", "ImageEdges", "lidar_edges", "lidar_depth_edges", "image_edges", "edge_score", "crop_to_camera"]
 
 
 @dataclass
 class LidarEdges:
     points: np.ndarray  # (M,3) samples on plane-plane intersection lines, LiDAR frame
-    dirs: np.ndarray  # (M,3) unit line directions
+    dirs: np.ndarray  # (M,3) unit line directions (NaN rows: unknown, e.g. isolated depth-edge points)
     n_planes: int = 0  # planar voxels
     n_pairs: int = 0  # plane pairs that produced samples
 
@@ -197,11 +197,61 @@ def _edges_one_grid(P, tree, voxel, shift, min_points, max_plane_rms, angle_rang
     return q[good], d[pair][good], len(pk), int(len(np.unique(pair[good])))
 
 
+def lidar_depth_edges(points: np.ndarray, el_bin_deg: float = 0.1, max_gap_deg: float = 1.0, min_jump_m: float = 0.5, rel_jump: float = 0.1,
+                      dir_radius: float = 0.4, max_range: float | None = None) -> LidarEdges:
+    """Depth-discontinuity edges of a *spinning* multi-beam scan (single sweeps are too sparse for plane
+    intersections): along each scan line (points binned by elevation, ordered by azimuth) a range jump larger than
+    ``max(min_jump_m, rel_jump * range)`` marks the nearer point as an occlusion edge. Its direction is the main
+    axis of the neighbouring edge points (``dir_radius``); points without a line-like neighbourhood are dropped.
+    Occlusion edges of a LiDAR are biased outwards by the beam width, which is why the plane-intersection edges of
+    :func:`lidar_edges` are preferred for dense (Livox) clouds."""
+    P = np.asarray(points, float)
+    if max_range is not None:
+        P = P[np.linalg.norm(P, axis=1) < max_range]
+    if len(P) < 10:
+        return LidarEdges(np.zeros((0, 3)), np.zeros((0, 3)))
+    rxy = np.hypot(P[:, 0], P[:, 1])
+    rng_ = np.linalg.norm(P, axis=1)
+    el = np.degrees(np.arctan2(P[:, 2], rxy))
+    az = np.degrees(np.arctan2(P[:, 1], P[:, 0]))
+    row = np.floor(el / el_bin_deg).astype(np.int64)
+    order = np.lexsort((az, row))
+    r_s, a_s, row_s = rng_[order], az[order], row[order]
+    same = (row_s[1:] == row_s[:-1]) & (np.abs(a_s[1:] - a_s[:-1]) < max_gap_deg)
+    jump = np.abs(r_s[1:] - r_s[:-1])
+    near = np.minimum(r_s[1:], r_s[:-1])
+    edge = same & (jump > np.maximum(min_jump_m, rel_jump * near))
+    fg = np.where(r_s[1:] < r_s[:-1], order[1:], order[:-1])[edge]
+    E = P[np.unique(fg)]
+    if len(E) < 3:
+        return LidarEdges(np.zeros((0, 3)), np.zeros((0, 3)))
+    tree = cKDTree(E)
+    k = min(8, len(E))
+    d, nn = tree.query(E, k=k)
+    ok_nb = np.isfinite(d) & (d < dir_radius)
+    cnt = ok_nb.sum(1)
+    nbrs = np.where(ok_nb[..., None], E[nn], 0.0)
+    mean = nbrs.sum(1) / np.maximum(cnt, 1)[:, None]
+    c = np.where(ok_nb[..., None], E[nn] - mean[:, None, :], 0.0)
+    cov = np.einsum("nki,nkj->nij", c, c) / np.maximum(cnt, 1)[:, None, None]
+    w, V = np.linalg.eigh(cov)
+    line = (cnt >= 3) & (w[:, 1] < 0.1 * np.maximum(w[:, 2], 1e-12))
+    dirs = np.where(line[:, None], V[:, :, 2], np.nan)  # NaN: direction unknown (matched without the direction test)
+    return LidarEdges(E, dirs)
+
+
 # ------------------------------------------------------------------------------------------------------------------
-def image_edges(image: np.ndarray, min_length: int = 40, canny: tuple[float, float] | None = None, blur: float = 1.5) -> ImageEdges:
-    """Long Canny edges of an image with their directions. ``canny`` thresholds default to the median-based
-    automatic choice (0.66 / 1.33 x median gradient-ish on the blurred image)."""
+def image_edges(image: np.ndarray, min_length: int = 40, canny: tuple[float, float] | None = None, blur: float = 1.5, method: str = "lsd") -> ImageEdges:
+    """Long image edges with their directions.
+
+    ``method="lsd"`` (default): straight segments of OpenCV's line-segment detector at least ``min_length`` px
+    long, sampled every pixel (sub-pixel positions, direction of the segment) - foliage and texture clutter that
+    a targetless method would otherwise lock onto is mostly gone. ``method="canny"``: Canny pixels of connected
+    edge chains whose extent is at least ``min_length`` px, refined to sub-pixel along the gradient; thresholds
+    default to the 90th percentile of the gradient magnitude."""
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if method == "lsd":
+        return _lsd_edges(gray, min_length)
     g = cv2.GaussianBlur(gray, (0, 0), blur) if blur > 0 else gray
     if canny is None:
         gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
@@ -226,9 +276,15 @@ def image_edges(image: np.ndarray, min_length: int = 40, canny: tuple[float, flo
     uv = np.stack([uu, vv], 1).astype(float)
     # sub-pixel: parabola through the gradient magnitude at -1, 0, +1 px along the gradient direction
     MAG = np.hypot(GX, GY)
-    mx = np.stack([uu - nx, uu + 0 * nx, uu + nx]).astype(np.float32)
-    my = np.stack([vv - ny, vv + 0 * ny, vv + ny]).astype(np.float32)
-    samp = cv2.remap(MAG, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    def bilinear(img, x, y):
+        h, w = img.shape
+        x = np.clip(x, 0, w - 1.001)
+        y = np.clip(y, 0, h - 1.001)
+        x0, y0 = np.floor(x).astype(int), np.floor(y).astype(int)
+        fx, fy = x - x0, y - y0
+        return (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x0 + 1] * fx * (1 - fy) + img[y0 + 1, x0] * (1 - fx) * fy + img[y0 + 1, x0 + 1] * fx * fy)
+
+    samp = [bilinear(MAG, uu + sg * nx, vv + sg * ny) for sg in (-1.0, 0.0, 1.0)]
     m0, m1, m2 = samp[0], samp[1], samp[2]
     den = m0 - 2 * m1 + m2
     off = np.where(den < -1e-6, 0.5 * (m0 - m2) / np.where(den < -1e-6, den, -1.0), 0.0)
@@ -236,6 +292,42 @@ def image_edges(image: np.ndarray, min_length: int = 40, canny: tuple[float, flo
     uv += np.stack([off * nx, off * ny], 1)
     dist = cv2.distanceTransform((~kept).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return ImageEdges(uv, dirs, edge_map, dist, cKDTree(uv) if len(uv) else None)
+
+
+def _lsd_edges(gray: np.ndarray, min_length: float) -> ImageEdges:
+    lines = cv2.createLineSegmentDetector().detect(gray)[0]
+    h, w = gray.shape
+    L = np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4).astype(float)
+    seg = L[:, 2:] - L[:, :2]
+    length = np.linalg.norm(seg, axis=1)
+    L, seg, length = L[length >= min_length], seg[length >= min_length], length[length >= min_length]
+    n = np.ceil(length).astype(int) + 1
+    which = np.repeat(np.arange(len(L)), n)
+    start = np.concatenate([[0], np.cumsum(n)[:-1]]) if len(n) else np.zeros(0, int)
+    t = (np.arange(n.sum()) - np.repeat(start, n)) / np.repeat(np.maximum(n - 1, 1), n)
+    uv = L[which, :2] + t[:, None] * seg[which]
+    dirs = seg[which] / length[which, None]
+    edge_map = np.zeros((h, w), np.uint8)
+    for x0, y0, x1, y1 in L:  # loop over segments (hundreds), not pixels
+        cv2.line(edge_map, (int(round(x0)), int(round(y0))), (int(round(x1)), int(round(y1))), 255, 1)
+    dist = cv2.distanceTransform((edge_map == 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return ImageEdges(uv, dirs, edge_map, dist, cKDTree(uv) if len(uv) else None)
+
+
+def crop_to_camera(points: np.ndarray, camera, T_cam_lidar: np.ndarray, margin: float = 0.25, min_depth: float = 0.5) -> np.ndarray:
+    """Mask of points in front of the camera whose projection under ``T_cam_lidar`` falls inside the image grown by
+    ``margin`` (fraction of the size) - a 360 deg spinning sweep is mostly outside the camera's view."""
+    p_cam = np.asarray(points, float) @ np.asarray(T_cam_lidar)[:3, :3].T + np.asarray(T_cam_lidar)[:3, 3]
+    z = p_cam[:, 2]
+    front = z > min_depth
+    xy = p_cam[front, :2] / z[front, None]
+    K = camera.K
+    uv = xy @ K[:2, :2].T + K[:2, 2]  # pinhole only: a generous crop does not need the distortion
+    w, h = camera.image_size
+    ok = (uv[:, 0] > -margin * w) & (uv[:, 0] < (1 + margin) * w) & (uv[:, 1] > -margin * h) & (uv[:, 1] < (1 + margin) * h)
+    mask = np.zeros(len(p_cam), bool)
+    mask[np.flatnonzero(front)[ok]] = True
+    return mask
 
 
 def edge_score(camera, T_cam_lidar: np.ndarray, edges: LidarEdges, img: ImageEdges, cap_px: float = 20.0, margin: float = 2.0) -> tuple[float, int]:

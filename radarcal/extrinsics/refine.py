@@ -43,12 +43,13 @@ class RefineOptions:
     max_angle_deg: float = 20.0
     loss_scale_px: float = 1.0  # Cauchy scale at the finest radius (coarser stages use radius / 4)
     max_rematch: int = 15
-    tol_rot_rad: float = 2e-6
-    tol_trans_m: float = 2e-5
+    tol_rot_rad: float = 2e-5
+    tol_trans_m: float = 2e-4
     coarse_search_deg: float = 6.0  # half-width of the rotation grid (0 disables)
     coarse_step_deg: float = 1.0
     fix_translation: bool = False
     min_matches: int = 60
+    translation_prior_m: float = 0.0  # sigma of a prior pulling the translation towards the initial guess (0: none)
     rotation_only_stages: int = 2  # the first (coarsest) radii solve rotation only
     translation_starts_m: float = 0.0  # extra starts with the camera centre moved +-this along each axis (0: none)
     n_starts: int = 3  # distinct coarse-search minima refined in full (plus the initial guess itself)
@@ -87,16 +88,18 @@ def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_
     if ie.tree is None or len(le.points) == 0:
         return np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
     uv, valid, z = cam.project_from(T, le.points)
-    uv2, valid2, _ = cam.project_from(T, le.points + 0.05 * le.dirs)
-    ok = valid & valid2 & cam.in_image(uv, 2.0) & (z > 0.3)
+    has_dir = np.all(np.isfinite(le.dirs), axis=1)
+    uv2, valid2, _ = cam.project_from(T, le.points + 0.05 * np.where(has_dir[:, None], le.dirs, 0.0))
+    ok = valid & (valid2 | ~has_dir) & cam.in_image(uv, 2.0) & (z > 0.3)
     idx = np.flatnonzero(ok)
     if len(idx) == 0:
         return np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
     d2 = uv2[idx] - uv[idx]
     d2 /= np.maximum(np.linalg.norm(d2, axis=1, keepdims=True), 1e-12)
+    hd = has_dir[idx]
     dist, nn = ie.tree.query(uv[idx], k=k, distance_upper_bound=radius)
     full = np.all(np.isfinite(dist), axis=1)
-    idx, d2, nn, uvp = idx[full], d2[full], nn[full], uv[idx][full]
+    idx, d2, nn, uvp, hd = idx[full], d2[full], nn[full], uv[idx][full], hd[full]
     pts = ie.uv[nn]  # (n,k,2)
     m = pts.mean(1)
     c = pts - m[:, None, :]
@@ -108,7 +111,7 @@ def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_
     cos_l = np.abs(np.sum(line_dir * d2, 1))
     cos_g = np.abs(np.einsum("nki,ni->nk", ie.dirs[nn], d2)).mean(1)
     cmax = np.cos(np.radians(max_angle_deg))
-    keep = linear & (cos_l > cmax) & (cos_g > cmax)
+    keep = linear & (((cos_l > cmax) & (cos_g > cmax)) | ~hd)
     normal = np.stack([-line_dir[:, 1], line_dir[:, 0]], 1)
     r = np.sum((uvp - m) * normal, 1)
     keep &= np.abs(r) < radius
@@ -185,11 +188,20 @@ def coarse_rotation_search(scenes: list[EdgeScene], T0: np.ndarray, half_width_d
     return out
 
 
-def _run_stages(scenes, T, o):
+def _weighted_fn(x, T0, scenes, matches, fix_t, sw, t_prior, sigma_t, f_scale):
+    r = _residual_fn(x, T0, scenes, matches, fix_t) * sw
+    if fix_t or sigma_t <= 0:
+        return r
+    t = _apply(x, T0)[:3, 3]
+    return np.concatenate([r, f_scale * (t - t_prior) / sigma_t])
+
+
+def _run_stages(scenes, T, o, t_prior=None):
     """Coarse-to-fine re-matching and robust least squares from one start. Rotation only at the coarse radii
     (translation is weakly observed and would absorb wrong matches), all 6 parameters at the fine ones."""
     history = []
     converged_stage = False
+    t_prior = T[:3, 3].copy() if t_prior is None else t_prior
     for si, radius in enumerate(o.radii_px):
         f_scale = o.loss_scale_px if radius == o.radii_px[-1] else max(o.loss_scale_px, radius / 4)
         rot_only = o.fix_translation or si < o.rotation_only_stages
@@ -201,7 +213,10 @@ def _run_stages(scenes, T, o):
                 history.append({"stage": f"r={radius:g}", "iter": it, "matches": n, "note": "too few matches"})
                 break
             x0 = np.zeros(3 if rot_only else 6)
-            res = least_squares(_residual_fn, x0, args=(T, scenes, matches, rot_only), loss="cauchy", f_scale=f_scale,
+            # IRLS with Cauchy weights (fixed per re-matching) so that the translation prior stays quadratic
+            r0 = _residual_fn(x0, T, scenes, matches, rot_only)
+            sw = 1.0 / np.sqrt(1.0 + (r0 / f_scale) ** 2)
+            res = least_squares(_weighted_fn, x0, args=(T, scenes, matches, rot_only, sw, t_prior, o.translation_prior_m, f_scale),
                                 x_scale=np.array([1e-3] * 3 + ([] if rot_only else [1e-2] * 3)), method="trf", max_nfev=50)
             x = res.x if not rot_only else np.concatenate([res.x, np.zeros(3)])
             T = _apply(x, T)
@@ -239,7 +254,7 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     residuals_before = np.concatenate([m[3] for m in matches0]) if matches0 else np.zeros(0)
     best = None
     for k, Ts in enumerate(starts):
-        T, conv, hist = _run_stages(scenes, Ts, o)
+        T, conv, hist = _run_stages(scenes, Ts, o, t_prior=T0[:3, 3])
         fine = _score_all(scenes, T, cap=o.radii_px[-1])
         history += [{"start": k, **h} for h in hist]
         history.append({"start": k, "final_score_px": fine, "converged": conv})

@@ -1,0 +1,221 @@
+"""``radarcal lidar-camera``: LiDAR -> camera extrinsics from manual picks / boards, refined by edge alignment."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import typer
+
+from radarcal import geometry
+from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
+from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.errors import InputError
+
+__all__ = ["lidar_camera"]
+
+
+def _pair_list(text: str | None, n: int, what: str) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        vals = tuple(float(t) for t in text.replace("x", ",").split(","))
+    except ValueError:
+        raise InputError(what, f"expected {n} comma-separated numbers, got {text!r}") from None
+    if len(vals) != n or not all(v > 0 for v in vals):
+        raise InputError(what, f"expected {n} positive numbers, got {text!r}")
+    return vals
+
+
+def lidar_camera(
+    bundle: Path = typer.Option(..., "--bundle", "-b", help="Calibration bundle (YAML); must hold the camera's intrinsics."),
+    camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
+    lidar: str = typer.Option("lidar0", "--lidar", help="LiDAR name (frame) in the bundle."),
+    images: list[Path] = typer.Option([], "--image", help="Image (raw, distorted); repeat for several scenes, paired in order with --cloud."),
+    clouds: list[Path] = typer.Option([], "--cloud", help="Point cloud (PCD/PLY/KITTI .bin/.npy) in the LiDAR frame; one per --image."),
+    init: Path = typer.Option(None, "--init", help="Initial T_cam_lidar: 4x4 JSON/text or 'x y z roll pitch yaw' (m, deg)."),
+    corners: Path = typer.Option(None, "--corners", help="Manual correspondences CSV x,y,z,u,v[,view]."),
+    board: str = typer.Option(None, "--board", help="Board size WIDTH,HEIGHT in m: detect boards in the clouds (RANSAC plane, rectangle, 4 corners)."),
+    board_uv: Path = typer.Option(None, "--board-uv", help="Clicked image corners of the boards: CSV u,v[,view], 4 rows per board, any order."),
+    board_squares: str = typer.Option(None, "--board-squares", help="NX,NY squares of a chessboard painted edge to edge on the board: find its image corners automatically."),
+    refine: bool = typer.Option(False, "--refine", help="Targetless edge-alignment refinement (multi-scene when several pairs)."),
+    lidar_edges_kind: str = typer.Option("planes", "--lidar-edges", help="planes (plane intersections; dense Livox clouds) or depth (range jumps along scan lines; single spinning sweeps)."),
+    image_edges_kind: str = typer.Option("lsd", "--image-edges", help="lsd (straight segments, less clutter) or canny."),
+    voxel: float = typer.Option(0.5, "--voxel", help="Voxel size (m) for LiDAR plane fitting (0.3-0.5 dense Livox, 1.0 sparse spinning)."),
+    search_deg: float = typer.Option(6.0, "--search-deg", help="Half-width of the coarse rotation search (deg; 0 disables)."),
+    max_range: float = typer.Option(60.0, "--max-range", help="Ignore LiDAR points farther than this (m) for edges."),
+    trans_prior: float = typer.Option(0.3, "--trans-prior", help="Sigma (m) of a prior holding the translation near the initial guess during --refine (0: none)."),
+    rotation_only: bool = typer.Option(False, "--rotation-only", help="Refine the rotation only (translation measured elsewhere)."),
+    overlay: Path = typer.Option(None, "--overlay", help="Write the first cloud over the first image, before | after (PNG)."),
+    force: bool = typer.Option(False, "--force", help="Store the result even when the refinement did not converge."),
+    as_json: bool = JsonOpt,
+) -> None:
+    """Calibrate T_cam_lidar: manual corners / boards (PnP) and/or targetless edge refinement."""
+    from radarcal.extrinsics import lidar_camera as lc
+    from radarcal.io import read_cloud, read_image, read_transform
+    from radarcal.io.corners_csv import read_corners_csv, read_uv_csv
+    from radarcal.synth.lidar_camera import MOUNT_R_CAM_LIDAR
+
+    t_start = time.perf_counter()
+    if len(images) != len(clouds):
+        raise InputError("--image/--cloud", f"give one --cloud per --image (got {len(images)} images, {len(clouds)} clouds)")
+    if not (corners or board or refine):
+        raise InputError("lidar-camera", "nothing to solve: give --corners, --board or --refine")
+    if (board or refine) and not images:
+        raise InputError("--image/--cloud", "--board and --refine need at least one --image/--cloud pair")
+    if board and not (board_uv or board_squares):
+        raise InputError("--board", "pair the cloud boards with image corners: give --board-uv FILE or --board-squares NX,NY")
+    board_size = _pair_list(board, 2, "--board")
+    squares = _pair_list(board_squares, 2, "--board-squares")
+    b = load_or_create_bundle(bundle)
+    cam = b.camera(camera)
+    imgs = [read_image(p) for p in images]
+    for p, im in zip(images, imgs):
+        if (im.shape[1], im.shape[0]) != cam.image_size:
+            raise InputError(p, f"image is {im.shape[1]}x{im.shape[0]} but camera {camera!r} in the bundle is {cam.width}x{cam.height}")
+    clds = [read_cloud(p) for p in clouds]
+    for p, c in zip(clouds, clds):
+        if len(c) < 100:
+            raise InputError(p, f"only {len(c)} points")
+
+    summary: dict = {"camera": camera, "lidar": lidar, "pairs": [[str(i), str(c)] for i, c in zip(images, clouds)], "warnings": []}
+    if init is not None:
+        T0 = read_transform(init)
+        init_src = str(init)
+    else:
+        T0 = geometry.make_T(MOUNT_R_CAM_LIDAR, np.zeros(3))
+        init_src = "default mounting (LiDAR x forward = camera z)"
+    summary["init"] = init_src
+    T = T0
+    method = []
+    residual: dict = {}
+    sigma: dict = {}
+    arrays: dict = {"T_init": T0}
+
+    # ---- manual: picks and/or boards
+    P_all, U_all = [], []
+    if corners is not None:
+        p, uv, view = read_corners_csv(corners)
+        P_all.append(p)
+        U_all.append(uv)
+    if board_size is not None:
+        uv_click, uv_view = (read_uv_csv(board_uv) if board_uv else (None, None))
+        for k, (im, c) in enumerate(zip(imgs, clds)):
+            found = lc.detect_boards_in_cloud(c.points, board_size)
+            if uv_click is not None:
+                sel = uv_click[uv_view == k]
+                img_boards = [sel[i : i + 4] for i in range(0, len(sel), 4)]
+            else:
+                img_boards = lc.detect_chessboards_in_image(im, cam, (int(squares[0]), int(squares[1])))
+            summary.setdefault("boards", []).append({"view": k, "in_cloud": len(found), "in_image": len(img_boards)})
+            if not found or not img_boards:
+                summary["warnings"].append(f"view {k}: {len(found)} board(s) in the cloud, {len(img_boards)} in the image: skipped")
+                continue
+            try:
+                Pb, Ub, w = lc.pair_boards(cam, [f.corners_lidar for f in found], img_boards, T_prior=T0)
+            except ValueError as e:
+                summary["warnings"].append(f"view {k}: {e}")
+                continue
+            summary["warnings"] += [f"view {k}: {x}" for x in w]
+            P_all.append(Pb)
+            U_all.append(Ub)
+    if P_all:
+        P, U = np.vstack(P_all), np.vstack(U_all)
+        if len(P) < 4:
+            raise InputError(corners or "--board", f"need at least 4 correspondences, got {len(P)}")
+        sol = lc.solve_corners(cam, P, U)
+        T = sol.T_cam_lidar
+        method.append(sol.method)
+        summary["warnings"] += sol.warnings
+        residual.update({"pnp_rms_px": sol.rms_px, "pnp_n_used": sol.n_used, "pnp_n_flagged": int(sol.outliers.sum())})
+        sigma.update({"pnp_rot_deg": np.degrees(sol.sigma[:3]).tolist(), "pnp_trans_m": sol.sigma[3:].tolist()})
+        summary["pnp"] = {"rms_px": sol.rms_px, "residuals_px": sol.residuals_px, "flagged_rows": np.flatnonzero(sol.outliers), "sigma_rot_deg": np.degrees(sol.sigma[:3]), "sigma_trans_m": sol.sigma[3:]}
+        arrays.update({"pnp_p_lidar": P, "pnp_uv": U, "pnp_residuals_uv": sol.residuals_uv, "pnp_flagged": sol.outliers, "T_pnp": T})
+
+    # ---- targetless refinement
+    converged = True
+    if refine:
+        from radarcal.extrinsics.edges import crop_to_camera, image_edges, lidar_depth_edges, lidar_edges
+        from radarcal.extrinsics.refine import PARAM_NAMES, EdgeScene, RefineOptions, refine_edges
+
+        if lidar_edges_kind not in ("planes", "depth"):
+            raise InputError("--lidar-edges", f"expected 'planes' or 'depth', got {lidar_edges_kind!r}")
+        if image_edges_kind not in ("lsd", "canny"):
+            raise InputError("--image-edges", f"expected 'lsd' or 'canny', got {image_edges_kind!r}")
+        scenes = []
+        with err_console.status("extracting edges"):
+            for p, im, c in zip(clouds, imgs, clds):
+                pts = c.points[crop_to_camera(c.points, cam, T, margin=0.3)]  # a spinning sweep is mostly out of view
+                if lidar_edges_kind == "planes":
+                    le = lidar_edges(pts, voxel=voxel, max_range=max_range)
+                else:
+                    le = lidar_depth_edges(pts, max_range=max_range)
+                if len(le.points) < 30:
+                    summary["warnings"].append(f"{p}: only {len(le.points)} LiDAR edge samples (try --voxel {voxel * 2:g})")
+                scenes.append(EdgeScene(cam, le, image_edges(im, method=image_edges_kind)))
+        with err_console.status("refining"):
+            res = refine_edges(scenes, T, RefineOptions(coarse_search_deg=search_deg, translation_prior_m=trans_prior, fix_translation=rotation_only))
+        converged = res.converged
+        T = res.T_cam_lidar
+        method.append("edge-alignment")
+        summary["warnings"] += res.warnings
+        summary["refine"] = {"converged": res.converged, "message": res.message, "rms_px": res.rms_px, "n_matches": res.n_matches, "edge_score_before_px": res.score_before,
+                             "edge_score_after_px": res.score_after, "sigma_rot_deg": np.degrees(res.sigma[:3]), "sigma_trans_m": res.sigma[3:], "observability": res.observability,
+                             "lidar_edge_samples": [len(s.lidar.points) for s in scenes]}
+        residual.update({"edge_rms_px": res.rms_px, "edge_matches": res.n_matches, "edge_score_px": res.score_after, "edge_score_before_px": res.score_before})
+        sigma.update({"edge_rot_deg": np.degrees(res.sigma[:3]).tolist(), "edge_trans_m": res.sigma[3:].tolist()})
+        arrays.update({"residuals_before": res.residuals_before, "residuals_after": res.residuals_after, **res.matches})
+        for name in PARAM_NAMES:
+            arrays[f"profile_{name}_offset"], arrays[f"profile_{name}_cost"] = res.profiles[name]
+
+    moved = geometry.pose_error(T, T0)
+    xyz_rpy = geometry.T_to_xyz_rpy_deg(T)
+    summary.update({"T_cam_lidar": T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "moved_from_init_deg_m": list(moved), "method": " + ".join(method), "stored": False})
+    if overlay is not None and imgs:
+        import cv2
+
+        from radarcal.extrinsics.overlay import overlay_cloud, side_by_side
+
+        pts = clds[0].points
+        pts = pts[np.linalg.norm(pts, axis=1) < max_range]
+        img = side_by_side(overlay_cloud(imgs[0], cam, T0, pts, label="before"), overlay_cloud(imgs[0], cam, T, pts, label="after"))
+        if not cv2.imwrite(str(overlay), img):
+            raise InputError(overlay, "cannot write the overlay image")
+        summary["overlay"] = str(overlay)
+    if converged or force:
+        inputs = [*images, *clouds] + [p for p in (init, corners, board_uv) if p is not None]
+        arrays["T_final"] = T
+        b.set_transform(camera, lidar, T, method=" + ".join(method), residual=residual, sigma=sigma,
+                        provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs(inputs)))
+        b.set_sensor(lidar, type=b.sensors.get(lidar, {}).get("type", "lidar"))
+        if b.path is None:
+            b.path = Path(bundle)
+        save_session(b, f"lidar_camera/{camera}_{lidar}", arrays, {"init": init_src, "method": " + ".join(method), "converged": converged, "pairs": summary["pairs"]})
+        save_bundle(b, bundle)
+        summary["stored"] = True
+    summary["seconds"] = time.perf_counter() - t_start
+
+    def human(s: dict) -> None:
+        x, y, z = s["xyz_m"]
+        r, p_, yw = s["rpy_deg"]
+        typer.echo(f"T_{camera}_{lidar} [{s['method']}]: xyz=({x:.4f}, {y:.4f}, {z:.4f}) m  rpy=({r:.3f}, {p_:.3f}, {yw:.3f}) deg")
+        typer.echo(f"  moved {s['moved_from_init_deg_m'][0]:.3f} deg / {s['moved_from_init_deg_m'][1] * 100:.1f} cm from the initial guess ({s['init']})")
+        if "pnp" in s:
+            q = s["pnp"]
+            typer.echo(f"  PnP: rms {q['rms_px']:.2f} px over {len(q['residuals_px']) - len(q['flagged_rows'])} picks; flagged rows {list(map(int, q['flagged_rows']))}; "
+                       f"sigma rot {np.array2string(np.asarray(q['sigma_rot_deg']), precision=3)} deg, trans {np.array2string(np.asarray(q['sigma_trans_m']) * 100, precision=2)} cm")
+        if "refine" in s:
+            q = s["refine"]
+            typer.echo(f"  edges: {q['message']}")
+            typer.echo(f"  edge score {q['edge_score_before_px']:.2f} -> {q['edge_score_after_px']:.2f} px; sigma rot {np.array2string(np.asarray(q['sigma_rot_deg']), precision=3)} deg, "
+                       f"trans {np.array2string(np.asarray(q['sigma_trans_m']) * 100, precision=2)} cm (lower bound); edge-direction spread {q['observability']['direction_spread']:.2f}")
+        for w in s["warnings"]:
+            typer.echo(f"  warning: {w}")
+        if s.get("overlay"):
+            typer.echo(f"  overlay: {s['overlay']}")
+        typer.echo(f"  {'stored in ' + str(bundle) if s['stored'] else 'NOT stored (did not converge; --force to store anyway)'}  ({s['seconds']:.1f} s)")
+
+    emit(summary, as_json, human)
+    if not (converged or force):
+        raise typer.Exit(1)

@@ -1,0 +1,70 @@
+"""`radarcal synth lidar-camera` and `radarcal lidar-camera` end to end on a generated scene."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from radarcal import geometry
+from radarcal.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def synth_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("lc")
+    assert main(["synth", "lidar-camera", "-o", str(out), "--seed", "4", "--duration", "3", "--boards", "0", "--json"]) == 0
+    return out
+
+
+def test_refine_cli_stores_transform_and_session(synth_dir, capsys):
+    capsys.readouterr()
+    ov = synth_dir / "ov.png"
+    rc = main(["lidar-camera", "-b", str(synth_dir / "bundle.yaml"), "--image", str(synth_dir / "image.png"), "--cloud", str(synth_dir / "cloud.pcd"),
+               "--init", str(synth_dir / "init.json"), "--refine", "--overlay", str(ov), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["stored"] and ov.is_file()
+    truth = json.loads((synth_dir / "truth.json").read_text())
+    from radarcal.bundle import load_bundle, load_session
+
+    b = load_bundle(synth_dir / "bundle.yaml")
+    T = b.T("cam0", "lidar0")
+    deg, m = geometry.pose_error(T, np.array(truth["T_cam_lidar"]))
+    assert deg < 0.15 and m < 0.03
+    e = b.transforms["T_cam0_lidar0"]
+    assert "edge-alignment" in e.method and e.residual["edge_matches"] > 100 and len(e.sigma["edge_rot_deg"]) == 3
+    arrays, meta = load_session(b, "lidar_camera/cam0_lidar0")
+    assert {"residuals_before", "residuals_after", "profile_rx_cost", "scene0_uv"} <= set(arrays)
+    assert meta["converged"] is True
+
+
+def test_corners_cli(synth_dir, tmp_path, capsys):
+    truth = json.loads((synth_dir / "truth.json").read_text())
+    T = np.array(truth["T_cam_lidar"])
+    from radarcal.camera import Camera
+
+    cam = Camera.from_dict(truth["camera"])
+    rng = np.random.default_rng(0)
+    p = np.column_stack([rng.uniform(4, 12, 12), rng.uniform(-3, 3, 12), rng.uniform(-1, 2, 12)])
+    uv, _, _ = cam.project_from(T, p)
+    uv += rng.normal(0, 0.5, uv.shape)
+    f = tmp_path / "c.csv"
+    f.write_text("x,y,z,u,v\n" + "\n".join(",".join(f"{v:.6f}" for v in row) for row in np.column_stack([p, uv])))
+    import shutil
+
+    shutil.copy(synth_dir / "bundle.yaml", tmp_path / "b.yaml")
+    capsys.readouterr()
+    assert main(["lidar-camera", "-b", str(tmp_path / "b.yaml"), "--corners", str(f), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert geometry.pose_error(np.array(out["T_cam_lidar"]), T)[0] < 0.1
+    assert out["pnp"]["rms_px"] < 1.0
+
+
+def test_bad_inputs_exit_2(synth_dir, tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("1,2,3\n")
+    assert main(["lidar-camera", "-b", str(synth_dir / "bundle.yaml"), "--corners", str(bad)]) == 2
+    assert "bad.csv" in capsys.readouterr().err
+    assert main(["lidar-camera", "-b", str(synth_dir / "bundle.yaml"), "--image", str(synth_dir / "image.png"), "--refine"]) == 2
+    assert main(["lidar-camera", "-b", str(synth_dir / "bundle.yaml"), "--camera", "nope", "--corners", str(bad)]) == 2
