@@ -30,7 +30,7 @@ from radarcal.report import intrinsics as ri
 from radarcal.report import lidar_camera as rl
 from radarcal.report.html import Section, Table
 
-__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data", "lidar_camera_data_from_result"]
+__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data"]
 
 
 @dataclass
@@ -128,12 +128,31 @@ def _read_npz(p: Path) -> tuple[dict, dict]:
     return arrays, meta
 
 
+def _resolve(name: str, base: Path | None) -> Path | None:
+    """A file named in a session: absolute, relative to the bundle's folder, or relative to the working folder."""
+    p = Path(name)
+    for cand in ([p] if p.is_absolute() else ([base / p] if base is not None else []) + [p]):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def _read_cloud_file(name: str, base: Path | None) -> np.ndarray | None:
+    p = _resolve(name, base)
+    if p is None:
+        return None
+    try:
+        from radarcal.io import read_cloud
+
+        return read_cloud(p).points
+    except InputError:
+        return None
+
+
 def _read_image_file(name: str, base: Path | None) -> np.ndarray | None:
     """An image named in a session (absolute, or relative to the bundle), or None when it is not there."""
-    p = Path(name)
-    if not p.is_absolute() and base is not None:
-        p = base / p
-    if not p.is_file():
+    p = _resolve(name, base)
+    if p is None:
         return None
     try:
         from radarcal.io import read_image
@@ -141,26 +160,6 @@ def _read_image_file(name: str, base: Path | None) -> np.ndarray | None:
         return read_image(p)
     except InputError:
         return None
-
-
-def _read_cloud_from_meta(meta: dict, base: Path | None, *keys: str) -> np.ndarray | None:
-    for k in keys:
-        v = meta.get(k)
-        if isinstance(v, list):
-            v = v[0] if v else None
-        if not v:
-            continue
-        p = Path(v)
-        if not p.is_absolute() and base is not None:
-            p = base / p
-        if p.is_file():
-            try:
-                from radarcal.io import read_cloud
-
-                return read_cloud(p).points
-            except InputError:
-                return None
-    return None
 
 
 def _read_image_from_meta(meta: dict, base: Path | None, *keys: str) -> np.ndarray | None:
@@ -433,71 +432,84 @@ class LidarCameraData:
     sigma6: np.ndarray | None = None  # rx ry rz (rad) tx ty tz (m)
     robust_scale_px: float | None = None
     image_files: list[str] = field(default_factory=list)
+    cloud_files: list[str] = field(default_factory=list)
+    pick_p_lidar: np.ndarray | None = None  # manual correspondences (PnP mode): LiDAR points
+    pick_uv: np.ndarray | None = None  # and their clicked pixels
+    pick_flagged: np.ndarray | None = None  # picks beyond 3σ
+    converged: bool | None = None
+    method: str = ""
     warnings: list[str] = field(default_factory=list)
 
 
-def lidar_camera_data(arrays: dict, meta: dict, T_final: np.ndarray | None = None) -> LidarCameraData:
-    """Normalise a LiDAR-camera session (generic names of ``_ALIASES``; per-parameter profiles may also be stored as
-    ``profile_<rx|ry|rz|tx|ty|tz>`` arrays of shape (2, n): offsets, costs)."""
+def lidar_camera_data(arrays: dict, meta: dict, T_final: np.ndarray | None = None, transform_sigma: dict | None = None) -> LidarCameraData:
+    """Normalise a LiDAR-camera session: the layout ``radarcal lidar-camera`` writes (``T_init``, ``T_final``,
+    ``scene<k>_uv`` / ``scene<k>_line_point``, ``residuals_before/after``, ``profile_<p>_offset/_cost``, ``pnp_*``;
+    meta ``pairs`` = [[image, cloud], …]) or the generic names of ``_ALIASES``. ``transform_sigma`` is the bundle
+    entry's σ (``edge_rot_deg``, ``edge_trans_m``) when the session holds none."""
     d = LidarCameraData()
     d.points_lidar = _get(arrays, meta, "points")
     T0, T1 = _get(arrays, meta, "T_init"), _get(arrays, meta, "T_final")
     d.T_init = None if T0 is None else np.asarray(T0, float)
     d.T_final = np.asarray(T1, float) if T1 is not None else T_final
     d.edge_uv_lidar, d.edge_uv_image = _get(arrays, meta, "edge_uv_lidar"), _get(arrays, meta, "edge_uv_image")
+    if d.edge_uv_lidar is None and "scene0_uv" in arrays and "scene0_line_point" in arrays:
+        d.edge_uv_lidar, d.edge_uv_image = arrays["scene0_uv"], arrays["scene0_line_point"]
     r = _get(arrays, meta, "edge_residual")
+    if r is not None and d.edge_uv_lidar is not None:
+        r = np.abs(np.asarray(r, float).ravel())[: len(d.edge_uv_lidar)]  # scene 0 comes first in a multi-scene solve
     if r is None and d.edge_uv_lidar is not None and d.edge_uv_image is not None:
         r = np.linalg.norm(np.asarray(d.edge_uv_image, float).reshape(-1, 2) - np.asarray(d.edge_uv_lidar, float).reshape(-1, 2), axis=1)
     d.edge_residual_px = r
     d.residual_before_px = _get(arrays, meta, "residual_before")
     d.profile_offsets, d.profile_costs = _get(arrays, meta, "profile_offsets"), _get(arrays, meta, "profile_costs")
+    if d.profile_costs is None and all(f"profile_{n}_cost" in arrays for n in rl.PARAM_NAMES):
+        d.profile_offsets = np.stack([np.asarray(arrays[f"profile_{n}_offset"], float) for n in rl.PARAM_NAMES])
+        d.profile_costs = np.stack([np.asarray(arrays[f"profile_{n}_cost"], float) for n in rl.PARAM_NAMES])
     if d.profile_costs is None and all(f"profile_{n}" in arrays for n in rl.PARAM_NAMES):
         prof = [np.asarray(arrays[f"profile_{n}"], float) for n in rl.PARAM_NAMES]
         d.profile_offsets = np.stack([p[0] for p in prof])
         d.profile_costs = np.stack([p[1] for p in prof])
     s6 = _get(arrays, meta, "sigma6")
     d.sigma6 = None if s6 is None else np.asarray(s6, float).ravel()
+    ts = transform_sigma or {}
+    if d.sigma6 is None and "edge_rot_deg" in ts and "edge_trans_m" in ts:
+        d.sigma6 = np.r_[np.radians(np.asarray(ts["edge_rot_deg"], float).ravel()), np.asarray(ts["edge_trans_m"], float).ravel()]
+    if "pnp_p_lidar" in arrays and "pnp_uv" in arrays:
+        d.pick_p_lidar, d.pick_uv = np.asarray(arrays["pnp_p_lidar"], float), np.asarray(arrays["pnp_uv"], float)
+        d.pick_flagged = np.asarray(arrays["pnp_flagged"], bool) if "pnp_flagged" in arrays else None
+    d.converged = meta.get("converged")
+    d.method = str(meta.get("method", ""))
+    pairs = meta.get("pairs")
+    if isinstance(pairs, list) and pairs and all(isinstance(p, (list, tuple)) and len(p) == 2 for p in pairs):
+        d.image_files = [str(p[0]) for p in pairs]
+        d.cloud_files = [str(p[1]) for p in pairs]
     rs = meta.get("robust_scale_px", meta.get("loss_scale_px"))
     d.robust_scale_px = float(rs) if isinstance(rs, (int, float)) else None
-    imgs = meta.get("images", meta.get("image"))
-    d.image_files = [str(x) for x in (imgs if isinstance(imgs, list) else [imgs] if imgs else [])]
+    if not d.image_files:
+        imgs = meta.get("images", meta.get("image"))
+        d.image_files = [str(x) for x in (imgs if isinstance(imgs, list) else [imgs] if imgs else [])]
+    if not d.cloud_files:
+        cl = meta.get("clouds", meta.get("cloud"))
+        d.cloud_files = [str(x) for x in (cl if isinstance(cl, list) else [cl] if cl else [])]
     d.warnings = [str(w) for w in meta.get("warnings") or []]
     return d
 
 
-def lidar_camera_data_from_result(result: Any, points_lidar: np.ndarray | None = None, scene: int = 0) -> LidarCameraData:
-    """A :class:`LidarCameraData` straight from an edge-refinement result object (attributes ``T_cam_lidar``,
-    ``T_init``, ``matches`` with ``scene<k>_uv`` / ``scene<k>_line_point``, ``residuals_before/after``,
-    ``profiles`` {name: (offsets, costs)}, ``sigma``, ``warnings``), for notebooks that solve in-process."""
-    d = LidarCameraData(points_lidar=points_lidar)
-    d.T_final = np.asarray(result.T_cam_lidar, float)
-    d.T_init = None if getattr(result, "T_init", None) is None else np.asarray(result.T_init, float)
-    m = getattr(result, "matches", {}) or {}
-    d.edge_uv_lidar = m.get(f"scene{scene}_uv")
-    d.edge_uv_image = m.get(f"scene{scene}_line_point")
-    r_after = getattr(result, "residuals_after", None)
-    if r_after is not None and d.edge_uv_lidar is not None and scene == 0:
-        d.edge_residual_px = np.abs(np.asarray(r_after, float))[: len(d.edge_uv_lidar)]
-    elif r_after is not None:
-        d.edge_residual_px = np.abs(np.asarray(r_after, float))
-    rb = getattr(result, "residuals_before", None)
-    d.residual_before_px = None if rb is None else np.abs(np.asarray(rb, float))
-    prof = getattr(result, "profiles", {}) or {}
-    if all(n in prof for n in rl.PARAM_NAMES):
-        d.profile_offsets = np.stack([np.asarray(prof[n][0], float) for n in rl.PARAM_NAMES])
-        d.profile_costs = np.stack([np.asarray(prof[n][1], float) for n in rl.PARAM_NAMES])
-    sig = getattr(result, "sigma", None)
-    d.sigma6 = None if sig is None else np.asarray(sig, float).ravel()
-    d.warnings = [str(w) for w in getattr(result, "warnings", []) or []]
-    return d
-
-
-def lidar_camera_section(key: str, camera: Camera, arrays: dict, meta: dict, T_final_bundle: np.ndarray | None = None, image: np.ndarray | None = None, skipped: list[str] | None = None) -> Section:
+def lidar_camera_section(key: str, camera: Camera, arrays: dict, meta: dict, T_final_bundle: np.ndarray | None = None, image: np.ndarray | None = None, skipped: list[str] | None = None, transform_sigma: dict | None = None) -> Section:
     sec = Section(f"LiDAR-camera: {key.split('/', 1)[-1]}")
     add = _Adder(sec, skipped if skipped is not None else [])
-    d = lidar_camera_data(arrays, meta, T_final_bundle)
+    d = lidar_camera_data(arrays, meta, T_final_bundle, transform_sigma)
+    if d.method or d.converged is not None:
+        sec.add(f"method: {d.method or '?'}; " + ("converged" if d.converged else "did NOT converge (stored with --force)" if d.converged is False else ""))
     for w in d.warnings:
         sec.add(f"warning: {w}")
+    if d.pick_p_lidar is not None and d.T_final is not None:
+        def picks():
+            uv_proj, _, _ = camera.project_from(d.T_final, d.pick_p_lidar)
+            names = [f"#{i}" for i in range(len(d.pick_uv))]
+            return rf.picks_residual_figure(camera.image_size, names, d.pick_uv, uv_proj, image, outlier=d.pick_flagged, title="Manual correspondences: clicks and reprojected LiDAR points")
+
+        add("manual correspondences", picks)
     transforms = {k: v for k, v in (("before", d.T_init), ("after", d.T_final)) if v is not None}
     add("cloud over image", lambda: rl.cloud_overlay_figure(image, camera, d.points_lidar, transforms), {"cloud points": d.points_lidar, "a transform": transforms or None})
     add("edge matches", lambda: rl.edge_matches_figure(image, camera.image_size, d.edge_uv_lidar, d.edge_uv_image, d.edge_residual_px), {"projected edge points": d.edge_uv_lidar, "matched image points": d.edge_uv_image})
@@ -684,12 +696,14 @@ def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, t
                 content.skipped.append(f"{key}: camera {cam_name!r} not in the bundle")
                 continue
             T_b = bundle.T(cam_name, lidar_name) if bundle.has_T(cam_name, lidar_name) else None
-            img = _read_image_from_meta(meta, base, "image", "images")
+            entry = bundle.transforms.get(f"T_{cam_name}_{lidar_name}")
+            d0 = lidar_camera_data(arrays, meta)
+            img = next((im for im in (_read_image_file(f, base) for f in d0.image_files[:1]) if im is not None), None)
             if _get(arrays, meta, "points") is None:  # no subsample in the session: the cloud file it names
-                pts = _read_cloud_from_meta(meta, base, "cloud", "clouds")
+                pts = next((c for c in (_read_cloud_file(f, base) for f in d0.cloud_files[:1]) if c is not None), None)
                 if pts is not None:
                     arrays = {**arrays, "points_lidar": pts}
-            content.sections.append(lidar_camera_section(key, bundle.cameras[cam_name].camera, arrays, meta, T_b, img, content.skipped))
+            content.sections.append(lidar_camera_section(key, bundle.cameras[cam_name].camera, arrays, meta, T_b, img, content.skipped, entry.sigma if entry else None))
         elif kind == "field_pnp":
             cam_name = rest
             cam = bundle.cameras[cam_name].camera if cam_name in bundle.cameras else None
