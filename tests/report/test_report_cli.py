@@ -66,24 +66,29 @@ def bundle_path(tmp_path_factory):
     b.set_transform("cam0", "field", np.linalg.inv(T_field_cam), method="field-pnp")
     b.field_model = {"name": "test", "size": [28.0, 15.0], "landmarks": {"a": [0, 0, 0], "b": [28, 15, 0], "c": [14, 7.5, 0.6], "d": [10, 2, 0]}, "outline": [[0, 0], [28, 0], [28, 15], [0, 15]]}
     save_session(b, "intrinsics/cam0", _intrinsics_arrays(rng), {"noise_sigma_px": 0.2, "valid_threshold_px": 0.2})
+    # the layout `radarcal lidar-camera --refine` writes; the image and cloud are named (relative) in meta "pairs"
+    import cv2
+
+    from radarcal.io import write_pcd
+
     pts = np.c_[rng.uniform(2, 30, 20000), rng.uniform(-8, 8, 20000), rng.uniform(-2, 4, 20000)]
+    write_pcd(tmp_path / "cloud.pcd", pts)
+    cv2.imwrite(str(tmp_path / "scene.png"), np.full((1024, 1280, 3), 100, np.uint8))
     a = rng.uniform([0, 0], [1280, 1024], (300, 2))
     x = np.linspace(-1, 1, 9)
-    save_session(
-        b,
-        "lidar_camera/cam0_lidar0",
-        {
-            "points_lidar": pts.astype(np.float32),
-            "T_cam_lidar_init": T_from_xyz_rpy_deg(0.05, 0, 0, 2, 1, 0) @ T_CAM_LIDAR,
-            "T_cam_lidar": T_CAM_LIDAR,
-            "edge_uv_lidar": a,
-            "edge_uv_image": a + rng.normal(0, 1, a.shape),
-            "profile_offsets": np.r_[[x * 0.02] * 3, [x * 0.1] * 3],
-            "profile_costs": 1 + np.r_[[x**2] * 6],
-            "sigma6": np.array([1e-3, 1e-3, 2e-3, 0.01, 0.01, 0.02]),
-        },
-        {"camera": "cam0", "lidar": "lidar0"},
-    )
+    arrays = {
+        "T_init": T_from_xyz_rpy_deg(0.05, 0, 0, 2, 1, 0) @ T_CAM_LIDAR,
+        "T_final": T_CAM_LIDAR,
+        "scene0_uv": a,
+        "scene0_line_point": a + rng.normal(0, 1, a.shape),
+        "residuals_before": rng.normal(0, 5, 280),
+        "residuals_after": rng.normal(0, 0.5, 300),
+    }
+    for i, name in enumerate(("rx", "ry", "rz", "tx", "ty", "tz")):
+        arrays[f"profile_{name}_offset"] = x * (0.02 if i < 3 else 0.1)
+        arrays[f"profile_{name}_cost"] = 1 + x**2
+    save_session(b, "lidar_camera/cam0_lidar0", arrays, {"init": "init.json", "method": "edge-alignment", "converged": True, "pairs": [["scene.png", "cloud.pcd"]]})
+    b.transforms["T_cam0_lidar0"].sigma = {"edge_rot_deg": [0.05, 0.02, 0.04], "edge_trans_m": [0.003, 0.008, 0.002]}
     xg = np.linspace(0, 28, 29)
     yg = np.linspace(0, 15, 16)
     xx, yy = np.meshgrid(xg, yg)
@@ -274,3 +279,30 @@ def test_lidar_camera_section_reads_files_named_by_the_session(tmp_path, capsys)
     assert len(ax.collections[0].get_offsets()) == int((valid & CAM.in_image(uv)).sum())
     assert len(ax.images) == 1  # the image named by the session is drawn underneath
     assert sum("skipped" in k for k in content.skipped) == 3
+
+
+def test_lidar_camera_section_of_the_command_layout(bundle_path):
+    from radarcal.bundle import load_bundle, load_session
+    from radarcal.io import read_cloud
+    from radarcal.report.build import lidar_camera_section
+
+    b = load_bundle(bundle_path)
+    arrays, meta = load_session(b, "lidar_camera/cam0_lidar0")
+    import cv2
+
+    img = cv2.imread(str(bundle_path.parent / "scene.png"))
+    pts = read_cloud(bundle_path.parent / "cloud.pcd").points
+    sec = lidar_camera_section("lidar_camera/cam0_lidar0", CAM, {**arrays, "points_lidar": pts}, meta, None, img, None, b.transforms["T_cam0_lidar0"].sigma)
+    figs = [it for it in sec.items if hasattr(it, "savefig")]
+    assert len(figs) == 4
+    overlay = figs[0]
+    assert [ax.get_title().split(":")[0] for ax in overlay.axes[:2]] == ["before", "after"]
+    assert len(overlay.axes[0].images) == 1
+    uv, valid, _ = CAM.project_from(T_CAM_LIDAR, pts.astype(float))
+    assert len(overlay.axes[1].collections[0].get_offsets()) == int((valid & CAM.in_image(uv)).sum())
+    matches = figs[1].axes[0].collections[0]
+    assert np.allclose(np.asarray(matches.get_segments())[:, 0], arrays["scene0_uv"])
+    assert np.allclose(matches.get_array(), np.abs(arrays["residuals_after"]))
+    tables = [it for it in sec.items if isinstance(it, Table)]
+    assert tables and tables[0].rows[0][:2] == ["rx", "0.05"] and tables[0].rows[5][:2] == ["tz", "0.002"]
+    assert sec.items[0].startswith("method: edge-alignment; converged")
