@@ -39,6 +39,7 @@ def kernel_env(tmp_path, monkeypatch):
     monkeypatch.setenv("PYDEVD_DISABLE_FILE_VALIDATION", "1")
     for k in [k for k in os.environ if k.startswith("RADARCAL_REPORT_")]:
         monkeypatch.delenv(k)
+    monkeypatch.setenv("RADARCAL_REPORT_WORKDIR", str(tmp_path))  # generated data goes to the test's tmp dir
     return monkeypatch
 
 
