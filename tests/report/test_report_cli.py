@@ -218,22 +218,59 @@ def _screenshot(html_path: Path, png_path: Path, size=(1300, 2400)) -> np.ndarra
     return img
 
 
+def _display_heights(html: str) -> list[float]:
+    """Display height (px) of every inline figure: width attribute × the PNG's aspect ratio."""
+    import base64
+    import re
+
+    import cv2
+
+    out = []
+    for m in re.finditer(r'<img alt="[^"]*" width="(\d+)" src="data:image/png;base64,([A-Za-z0-9+/=]+)"', html):
+        img = cv2.imdecode(np.frombuffer(base64.b64decode(m.group(2)), np.uint8), cv2.IMREAD_GRAYSCALE)
+        out.append(int(m.group(1)) * img.shape[0] / img.shape[1])
+    return out
+
+
+def _content_bottom(img: np.ndarray) -> int:
+    """Last screenshot row that differs from the page background (#f6f7f9)."""
+    bg = np.all(np.abs(img.astype(int) - [249, 247, 246]) <= 2, axis=2)
+    rows = np.nonzero(~bg.all(axis=1))[0]
+    return int(rows.max()) if rows.size else 0
+
+
 @pytest.mark.skipif(_chromium() is None, reason="no headless Chromium installed (apt-get install chromium); the inline PNGs are checked by test_report_cli_writes_every_section")
 def test_report_renders_in_chromium(full_report, tmp_path):
     import cv2
 
     out, _ = full_report
-    img = _screenshot(out, tmp_path / "report.png", (1300, 3000))
+    heights = _display_heights(out.read_text())
+    assert len(heights) == 16
+    img = _screenshot(out, tmp_path / "report.png", (1300, 16000))  # tall enough for the whole page
     gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     assert gray.std() > 20, "the rendered page is blank"
-    # the figures are drawn: coloured content over a good part of the page height
-    sat = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)[..., 1] > 80
-    rows_with_colour = float(np.mean(sat.any(axis=1)))
-    assert rows_with_colour > 0.3, f"only {rows_with_colour:.0%} of the page rows show coloured content"
+    # every figure was decoded and laid out at its full size (a broken image collapses to an icon): the page is at
+    # least as tall as the figures stacked
+    assert _content_bottom(img) >= sum(heights), f"page ends at {_content_bottom(img)} px, figures need {sum(heights):.0f} px"
+    # the figures are drawn: coloured content over a good part of the page, down to the last section (run tracks)
+    page = img[: _content_bottom(img)]
+    sat = cv2.cvtColor(page, cv2.COLOR_BGR2HSV)[..., 1] > 80
+    assert float(np.mean(sat.any(axis=1))) > 0.3
+    tail = page[-int(heights[-1]) - 40 :]  # the last figure (error over time) and the section's bottom padding
+    dark = cv2.cvtColor(tail, cv2.COLOR_BGR2GRAY) < 160  # axes frame, ticks, labels
+    assert dark.any(axis=1).mean() > 0.5 and sat[-int(heights[-1]) - 40 :].any(), "the last figure (error over time) is not drawn"
     # known content: the outlier view (view 3, 2 px noise) is a saturated red bar in the first figure
-    b, g, r = (img[..., i].astype(int) for i in range(3))
+    b, g, r = (page[..., i].astype(int) for i in range(3))
     red = (r > 150) & (g < 90) & (b < 90)  # tab:red = (214, 39, 40)
-    assert red.sum() > 300, "the outlier bar of the per-view error figure is not visible"
+    assert red[:3000].sum() > 300, "the outlier bar of the per-view error figure is not visible"
+
+    # negative control: the same page with one figure's PNG corrupted renders shorter than its figures
+    html = out.read_text()
+    i = html.index("base64,") + 7
+    broken = tmp_path / "broken.html"
+    broken.write_text(html[:i] + "AAAA" + html[i + 4000 :])
+    img_b = _screenshot(broken, tmp_path / "broken.png", (1300, 16000))
+    assert _content_bottom(img_b) < _content_bottom(img) - heights[0] / 2
 
 
 def test_stereo_section_per_pair_rms():
