@@ -4,7 +4,7 @@ This is the I/O edge of :mod:`radarcal.report`: it reads session ``.npz`` files,
 metadata, and run track files, then calls the pure figure functions. Whatever a session lacks is skipped with a
 note in the report, so a report can always be made from what is there.
 
-Session keys (written with :func:`radarcal.bundle.save_session`): ``intrinsics/<camera>``,
+Session keys (written with :func:`radarcal.bundle.save_session`): ``intrinsics/<camera>``, ``stereo/<cam0>_<cam1>``,
 ``lidar_camera/<camera>_<lidar>``, ``field_pnp/<camera>``. The arrays each section uses are listed in
 ``docs/report.md``; several names are accepted for each (``_ALIASES``) so small differences between commands do not
 lose a figure.
@@ -61,9 +61,6 @@ _ALIASES: dict[str, tuple[str, ...]] = {
     "cv_v": ("crossval_v", "cv_grid_v"),
     "cv_diff": ("crossval_diff_px", "crossval_diff", "cv_diff_px"),
     "cv_sigma": ("crossval_sigma_px", "crossval_sigma", "cv_sigma_px"),
-    "param_values": ("param_values", "params"),
-    "param_sigmas": ("param_sigmas", "param_sigma", "sigmas"),
-    "param_names": ("param_names",),
     # lidar-camera
     "points": ("points_lidar", "cloud_points", "points", "p_lidar"),
     "T_init": ("T_cam_lidar_init", "T_init", "T_before"),
@@ -163,22 +160,15 @@ def _read_image_file(name: str, base: Path | None) -> np.ndarray | None:
 
 
 def _read_image_from_meta(meta: dict, base: Path | None, *keys: str) -> np.ndarray | None:
+    """The first readable image among the files ``meta[key]`` names (a path or a list of paths)."""
     for k in keys:
         v = meta.get(k)
         if isinstance(v, list):
             v = v[0] if v else None
-        if not v:
-            continue
-        p = Path(v)
-        if not p.is_absolute() and base is not None:
-            p = base / p
-        if p.is_file():
-            try:
-                from radarcal.io import read_image
-
-                return read_image(p)
-            except InputError:
-                return None
+        if v:
+            img = _read_image_file(str(v), base)
+            if img is not None:
+                return img
     return None
 
 
