@@ -680,7 +680,8 @@ def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, t
         elif kind == "stereo":
             content.sections.append(stereo_section(key, arrays, meta, content.skipped))
         elif kind == "lidar_camera":
-            cam_name = meta.get("camera") or rest.split("_")[0]
+            known = sorted((c for c in bundle.cameras if rest.startswith(c + "_")), key=len, reverse=True)
+            cam_name = meta.get("camera") or (known[0] if known else rest.split("_")[0])
             lidar_name = meta.get("lidar") or rest[len(cam_name) + 1 :]
             if cam_name not in bundle.cameras:
                 content.skipped.append(f"{key}: camera {cam_name!r} not in the bundle")
@@ -697,10 +698,7 @@ def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, t
         elif kind == "field_pnp":
             cam_name = rest
             cam = bundle.cameras[cam_name].camera if cam_name in bundle.cameras else None
-            T = None
-            for frame in ("field",):
-                if bundle.has_T(cam_name, frame):
-                    T = bundle.T(cam_name, frame)
+            T = bundle.T(cam_name, "field") if bundle.has_T(cam_name, "field") else None
             img = _read_image_from_meta(meta, base, "image")
             content.sections.append(field_section(cam_name, cam, arrays, meta, field_model, T, img, content.skipped))
         else:
