@@ -16,7 +16,7 @@ from radarcal.errors import InputError
 from radarcal.intrinsics.collect import ViewInput, decide_layout, detect_files, diagnose, expand_sources, sample_video
 from radarcal.intrinsics.detect import BoardSpec, normalise_order, object_points
 from radarcal.intrinsics.pipeline import IntrinsicsResult, NotEnoughViews, run_intrinsics
-from radarcal.intrinsics.select import DESCRIPTOR_NAMES
+from radarcal.intrinsics.select import DESCRIPTOR_NAMES, TARGET_RANGES, view_descriptor
 from radarcal.intrinsics.solve import MODELS, SolveError
 from radarcal.intrinsics.stereo import StereoResult, pair_by_name, stereo_calibrate
 
@@ -32,12 +32,28 @@ def _collect(sources: list[str], board: BoardSpec, workers: int, label: str) -> 
             from rich.progress import Progress
 
             with Progress(console=err_console, transient=True) as prog:
-                task = prog.add_task(f"detecting {label} ({len(images)} images, {workers} workers)", total=len(images))
-                views += detect_files(images, board, workers, lambda k, n: prog.update(task, completed=k))
+                title = f"detecting {label} ({len(images)} images, {workers} workers)"
+                task = prog.add_task(title, total=len(images))
+                descs: list[np.ndarray] = []
+
+                def done(k: int, n: int, v: ViewInput) -> None:
+                    # ROS-style live coverage bars: X / Y / Size / Skew of the boards found so far
+                    d = v.detection
+                    if d is not None and d.ok:
+                        descs.append(view_descriptor(d.uv, d.ids, board.grid_shape, d.image_size))
+                    bars = ""
+                    if descs:
+                        a = np.array(descs)
+                        prog_ = np.minimum((a.max(axis=0) - a.min(axis=0)) / TARGET_RANGES, 1.0)
+                        bars = "  " + " ".join(f"{nm} " + "█" * int(round(p * 5)) + "·" * (5 - int(round(p * 5))) for nm, p in zip(DESCRIPTOR_NAMES, prog_))
+                    prog.update(task, completed=k, description=f"{title}: {len(descs)} boards{bars}")
+
+                views += detect_files(images, board, workers, done)
         else:
             views += detect_files(images, board, workers)
     for v in videos:
-        err_console.print(f"sampling frames of {v} ...") if err_console.is_terminal else None
+        if err_console.is_terminal:
+            err_console.print(f"sampling frames of {v} ...")
         views += sample_video(v, board, workers=workers)
     return views, board, layout_info, images + videos
 

@@ -49,6 +49,8 @@ def synth_board(
     bad_view: bool = typer.Option(False, "--bad-view", help="One view with a bowed (non-flat) pattern: an outlier."),
     bad_px: float = typer.Option(1.5, "--bad-px", help="Largest corner displacement of the bad view in px."),
     stereo: float = typer.Option(0.0, "--stereo", help="Baseline in metres of a second camera (cam0/ and cam1/ folders); 0 = mono."),
+    video: float = typer.Option(0.0, "--video", help="Also write video.avi (MJPG) of this many seconds: the board moving through the views."),
+    fps: float = typer.Option(10.0, "--fps", help="Video frame rate."),
     blurred: int = typer.Option(0, "--blurred", help="How many of the views get a motion streak (1-1.6 % of the image width)."),
     as_json: bool = JsonOpt,
 ) -> None:
@@ -87,6 +89,8 @@ def synth_board(
         raise InputError("--board", str(e)) from None
     settings = RenderSettings(supersample=supersample, blur_sigma=blur, noise_sigma=noise, vignetting=vignetting, fisheye_fov_deg=fov)
 
+    if video < 0 or video > 600 or not (1 <= fps <= 120):
+        raise InputError("--video/--fps", f"expected 0..600 s at 1..120 fps, got {video:g} s at {fps:g} fps")
     if stereo < 0 or stereo > 10:
         raise InputError("--stereo", f"baseline must be in 0..10 m, got {stereo:g}")
     rig = default_stereo_camera(camera, stereo) if stereo > 0 else None
@@ -95,12 +99,13 @@ def synth_board(
         return progress(it, "rendering", total=len(it))
 
     # the command as typed, with the output folder replaced so that the same call elsewhere gives the same bytes
-    command = " ".join("OUT_DIR" if a == str(out_dir) else a for a in command_line().split(" "))
+    command = " ".join("OUT_DIR" if a and not a.startswith("-") and Path(a) == Path(out_dir) else a for a in command_line().split(" "))
     t0 = time.perf_counter()
     try:
         truth = write_board_set(out_dir, camera, spec, n_views=views, seed=seed, settings=settings, coverage=coverage,
                                 n_partial=partial, n_blank=blank, n_corrupt=corrupt, bad_view=bad_view,
-                                bad_px=bad_px, n_blurred=blurred, stereo=rig, command=command, progress=prog)
+                                bad_px=bad_px, n_blurred=blurred, stereo=rig, video_seconds=video, video_fps=fps,
+                                command=command, progress=prog)
     except ValueError as e:
         raise InputError("--board/--size", str(e)) from None
     except OSError as e:
@@ -117,6 +122,8 @@ def synth_board(
         "files": {k: v for k, v in files.items() if k != "all"},
         "seconds": round(elapsed, 2),
     }
+    if "video" in truth:
+        summary["video"] = {k: truth["video"][k] for k in ("file", "fps", "n_frames", "keyframes")}
     if "stereo" in truth:
         summary["stereo"] = {k: v for k, v in truth["stereo"].items() if k != "files1"}
 
@@ -134,6 +141,9 @@ def synth_board(
         f = s["files"]
         typer.echo(f"  views: {len(f['full'])} full, {len(f['partial'])} partial, {len(f['bad'])} bad, {len(f['blurred'])} blurred, "
                    f"{len(f['blank'])} blank, {len(f['corrupt'])} corrupt")
+        if "video" in s:
+            vd = s["video"]
+            typer.echo(f"  video: {vd['file']} {vd['n_frames']} frames at {vd['fps']:g} fps, key poses at frames {vd['keyframes']}")
         if "stereo" in s:
             st = s["stereo"]
             typer.echo(f"  stereo: cam1 {st['model1']} fx={st['camera1']['K'][0][0]:.3f}, baseline {st['baseline_m'] * 1000:.2f} mm "

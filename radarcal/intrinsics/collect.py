@@ -1,12 +1,17 @@
 """The I/O edge of ``radarcal intrinsics``: expand SOURCE arguments, read images / video frames, and detect the
 board in parallel (``concurrent.futures.ProcessPoolExecutor``). Returns one :class:`ViewInput` per image/frame
-with either a :class:`~radarcal.intrinsics.detect.Detection` or the reason it could not be read."""
+with either a :class:`~radarcal.intrinsics.detect.Detection` or the reason it could not be read.
+
+Workers come from a ``forkserver`` (clean processes; forking after OpenCV/BLAS threads ran can deadlock), so a
+script calling :func:`detect_files` with ``workers > 1`` needs the usual ``if __name__ == "__main__":`` guard;
+without it the pool fails and detection falls back to this process."""
 
 from __future__ import annotations
 
 import glob
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable
@@ -15,6 +20,7 @@ import cv2
 import numpy as np
 
 from radarcal.errors import InputError
+from radarcal.io.images import read_image
 from radarcal.intrinsics.detect import BoardSpec, Detection, choose_charuco_layout, detect_board, diagnose_board_size
 from radarcal.intrinsics.select import novel_mask, view_descriptor
 
@@ -66,18 +72,37 @@ def _pool(workers: int) -> ProcessPoolExecutor:
     import multiprocessing as mp
 
     method = "forkserver" if "forkserver" in mp.get_all_start_methods() else "spawn"
-    return ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context(method), initializer=_worker_init)
+    ctx = mp.get_context(method)
+    if method == "forkserver":  # import the detector once in the server; workers fork from it ready to go
+        ctx.set_forkserver_preload(["radarcal.intrinsics.collect"])
+    return ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_worker_init)
+
+
+def _truncated(path: str) -> str | None:
+    """A cheap end check for PNG (the IEND chunk closes every complete file): names a truncated PNG precisely and
+    keeps libpng from printing to stderr mid-run. JPEGs are left to the decoder (cameras append data after EOI)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(8)
+            f.seek(0, os.SEEK_END)
+            size = f.tell()
+            f.seek(max(0, size - 64))
+            tail = f.read()
+    except OSError:
+        return None
+    if head.startswith(b"\x89PNG\r\n\x1a\n") and b"IEND" not in tail:
+        return "truncated PNG (no IEND chunk)"
+    return None
 
 
 def _detect_one(path: str, board: BoardSpec) -> ViewInput:
-    data = np.fromfile(path, dtype=np.uint8) if os.path.isfile(path) else None
-    if data is None:
-        return ViewInput(path, None, "unreadable: file not found")
-    if data.size == 0:
-        return ViewInput(path, None, "unreadable: empty file")
-    gray = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
-    if gray is None or gray.size == 0:
-        return ViewInput(path, None, "unreadable: corrupt or not an image")
+    cut = _truncated(path)
+    if cut:
+        return ViewInput(path, None, f"unreadable: {cut}")
+    try:
+        gray = read_image(path, grayscale=True)
+    except InputError as e:
+        return ViewInput(path, None, f"unreadable: {e.message}")
     return ViewInput(path, detect_board(gray, board))
 
 
@@ -97,26 +122,33 @@ def decide_layout(paths: list[Path], board: BoardSpec, sample: int = 6) -> tuple
     return (board if legacy is None else replace(board, legacy=legacy)), info
 
 
-def detect_files(paths: list[Path], board: BoardSpec, workers: int = 2, on_done: Callable[[int, int], None] | None = None) -> list[ViewInput]:
-    """Detect ``board`` in every file, ``workers`` processes in parallel (1 = in this process). Input order kept."""
+def detect_files(paths: list[Path], board: BoardSpec, workers: int = 2, on_done: Callable[[int, int, ViewInput], None] | None = None) -> list[ViewInput]:
+    """Detect ``board`` in every file, ``workers`` processes in parallel (1 = in this process). Input order kept.
+    ``on_done(k, n, view)`` is called as each file finishes (progress, live coverage)."""
     names = [str(p) for p in paths]
     out: list[ViewInput | None] = [None] * len(names)
     if workers <= 1 or len(names) < 2:
         for i, n in enumerate(names):
             out[i] = _detect_one(n, board)
             if on_done:
-                on_done(i + 1, len(names))
+                on_done(i + 1, len(names), out[i])
         return out  # type: ignore[return-value]
-    with _pool(workers) as ex:
-        futs = {ex.submit(_detect_one, n, board): i for i, n in enumerate(names)}
-        for k, f in enumerate(as_completed(futs), 1):
-            i = futs[f]
-            try:
-                out[i] = f.result()
-            except Exception as e:  # noqa: BLE001 - one bad file must not end the run
-                out[i] = ViewInput(names[i], None, f"unreadable: {e.__class__.__name__}: {e}")
-            if on_done:
-                on_done(k, len(names))
+    try:
+        with _pool(workers) as ex:
+            futs = {ex.submit(_detect_one, n, board): i for i, n in enumerate(names)}
+            for k, f in enumerate(as_completed(futs), 1):
+                i = futs[f]
+                try:
+                    out[i] = f.result()
+                except BrokenProcessPool:
+                    raise
+                except Exception as e:  # noqa: BLE001 - one bad file must not end the run
+                    out[i] = ViewInput(names[i], None, f"unreadable: {e.__class__.__name__}: {e}")
+                if on_done:
+                    on_done(k, len(names), out[i])
+    except (BrokenProcessPool, RuntimeError, OSError):
+        # no worker processes (e.g. a script without the ``if __name__ == "__main__":`` guard): do it here
+        return detect_files(paths, board, 1, on_done)
     return out  # type: ignore[return-value]
 
 

@@ -111,9 +111,9 @@ def choose_model(object_points, image_points, image_size, candidates=("pinhole5"
     for m in sorted(candidates, key=lambda m: _COMPLEXITY[m]):
         row = {"model": m}
         try:
-            cals[m] = calibrate(object_points, image_points, image_size, m)
+            cals[m] = calibrate(object_points, image_points, image_size, m, **kw)
             row["rms_px"] = cals[m].rms_px
-            cvs[m] = cross_validate(object_points, image_points, image_size, m, **kw)
+            cvs[m] = cross_validate(object_points, image_points, image_size, m, **kw)  # kw: calibrate() options
             row.update({k: v for k, v in cvs[m].summary().items() if k != "model"})
         except (SolveError, np.linalg.LinAlgError, ValueError) as e:
             row["error"] = str(e)

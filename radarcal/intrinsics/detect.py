@@ -30,6 +30,7 @@ __all__ = [
     "refine_corners",
     "neighbour_gaps",
     "edge_width_px",
+    "grid_directions",
     "diagnose_board_size",
     "choose_charuco_layout",
     "normalise_order",
@@ -143,10 +144,33 @@ def refine_corners(gray: np.ndarray, uv: np.ndarray, gaps: np.ndarray, factor: f
     return out.astype(float)
 
 
-def edge_width_px(gray: np.ndarray, uv: np.ndarray, gaps: np.ndarray) -> float:
-    """Blur measure: median over corners of (local intensity range / max gradient), ≈ edge width in px.
+def grid_directions(uv: np.ndarray, ids: np.ndarray, grid_shape: tuple[int, int]) -> np.ndarray:
+    """Per corner: unit vectors along the board's row and column directions (N,2,2), from the neighbouring
+    corners (the view's median direction where a corner has no neighbour on that axis)."""
+    nr, nc = grid_shape
+    grid = np.full((nr + 2, nc + 2, 2), np.nan)
+    ids = np.asarray(ids, int)
+    grid[1:-1, 1:-1].reshape(-1, 2)[ids] = uv
+    r, c = np.divmod(ids, nc)
+    r, c = r + 1, c + 1
+    out = np.empty((len(ids), 2, 2))
+    for k, (dr, dc) in enumerate(((0, 1), (1, 0))):
+        fwd = grid[r + dr, c + dc] - grid[r, c]
+        bwd = grid[r, c] - grid[r - dr, c - dc]
+        d = np.where(np.isnan(fwd), bwd, np.where(np.isnan(bwd), fwd, fwd + bwd))
+        med = np.nanmedian(d, axis=0) if np.any(np.isfinite(d[:, 0])) else np.array([1.0, 0.0] if k == 0 else [0.0, 1.0])
+        d = np.where(np.isnan(d), med, d)
+        out[:, k] = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    return out
 
-    A sharp edge is ~1-1.5 px wide; Gaussian blur of σ px widens it to ≈ 2.5 σ.
+
+def edge_width_px(gray: np.ndarray, uv: np.ndarray, gaps: np.ndarray, directions: np.ndarray | None = None) -> float:
+    """Blur measure ≈ edge width in px: local intensity range / steepest gradient across an edge.
+
+    With ``directions`` (N,2,2: the board's row/column directions at each corner, :func:`grid_directions`) the
+    width is measured across each of the two edge families separately and the wider one counts, so a motion
+    streak along one axis is caught; without, across the steepest gradient. Median over corners. A perfect step
+    measures 2 px (central differences); a Gaussian blur of σ px ≈ 2.5σ.
     """
     if len(uv) == 0:
         return float("nan")
@@ -154,7 +178,6 @@ def edge_width_px(gray: np.ndarray, uv: np.ndarray, gaps: np.ndarray) -> float:
     img = gray.astype(np.float32)
     gx = cv2.Sobel(img, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(img, cv2.CV_32F, 0, 1, ksize=3) / 8.0
-    mag = np.hypot(gx, gy)
     gfin = np.where(np.isfinite(gaps), gaps, 20.0)
     r = int(np.clip(np.median(gfin) * 0.35, 3, 20))
     off = np.arange(-r, r + 1)
@@ -163,13 +186,21 @@ def edge_width_px(gray: np.ndarray, uv: np.ndarray, gaps: np.ndarray) -> float:
     rows = cv[:, None, None] + off[None, :, None]
     cols = cu[:, None, None] + off[None, None, :]
     patch = img[rows, cols].reshape(len(uv), -1)
-    gpatch = mag[rows, cols].reshape(len(uv), -1)
+    px = gx[rows, cols].reshape(len(uv), -1)
+    py = gy[rows, cols].reshape(len(uv), -1)
     lo, hi = np.percentile(patch, [5, 95], axis=1)
     contrast = hi - lo
     ok = contrast > 10
     if not np.any(ok):
         return float("nan")
-    width = contrast[ok] / np.maximum(gpatch[ok].max(axis=1), 1e-6)
+    if directions is None:
+        gmax = np.hypot(px, py).max(axis=1)
+    else:
+        # an edge along the row direction has its gradient along the row direction's normal, and vice versa
+        nrm = np.stack([-directions[:, :, 1], directions[:, :, 0]], axis=-1)  # (N,2 families,2)
+        g_fam = np.abs(px[:, None, :] * nrm[:, :, 0:1] + py[:, None, :] * nrm[:, :, 1:2]).max(axis=2)  # (N,2)
+        gmax = g_fam.min(axis=1)  # the blurrier family
+    width = contrast[ok] / np.maximum(gmax[ok], 1e-6)
     return float(np.median(width))
 
 
@@ -206,7 +237,7 @@ def _finish(gray: np.ndarray, det: Detection, board: BoardSpec, refine: bool, fa
         det.uv = refine_corners(gray, det.uv, gaps, factor)
         gaps = neighbour_gaps(det.uv, det.ids, board.grid_shape)
     det.min_gap_px = float(np.min(gaps)) if len(gaps) else float("nan")
-    det.edge_width_px = edge_width_px(gray, det.uv, gaps)
+    det.edge_width_px = edge_width_px(gray, det.uv, gaps, grid_directions(det.uv, det.ids, board.grid_shape))
     return det
 
 

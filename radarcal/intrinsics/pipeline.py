@@ -103,7 +103,7 @@ def run_intrinsics(
     cv = None
     notes: list[str] = []
     if model == "auto":
-        choice, cals, cvs = choose_model(obj, img, size, MODELS)
+        choice, cals, cvs = choose_model(obj, img, size, MODELS, reject=reject, k_sigma=k_sigma)
         cal = cals[choice.model]
         cv = cvs.get(choice.model)
     else:

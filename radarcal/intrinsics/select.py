@@ -81,7 +81,7 @@ def coverage(descriptors: np.ndarray, uv_all: np.ndarray, image_size: tuple[int,
     grid = np.zeros((6, 8), int)
     np.add.at(grid, (gy, gx), 1)
     frac = float(np.mean(grid > 0))
-    warnings = [f"coverage {n} = {p:.2f} < {warn_below}: move the board more along {n}" for n, p in zip(DESCRIPTOR_NAMES, prog) if p < warn_below]
+    warnings = [f"coverage {n} = {np.floor(p * 100) / 100:.2f} < {warn_below}: move the board more along {n}" for n, p in zip(DESCRIPTOR_NAMES, prog) if p < warn_below]
     if frac < 0.6:
         warnings.append(f"corners reach only {frac:.0%} of the image (8x6 grid): cover the corners and edges")
     names = DESCRIPTOR_NAMES

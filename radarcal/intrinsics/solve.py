@@ -1,7 +1,9 @@
 """Intrinsics solve: OpenCV's optimiser wrapped with outlier rejection, honest σ and a projection-uncertainty map.
 
 Pure numeric core. ``calibrate`` iterates *solve → residuals → drop corners beyond k·σ and views that do not fit →
-re-solve* (rejected items are re-admitted when they fit again), then linearises the final solution with radarcal's
+re-solve* until nothing changes. In the first ``free_iterations`` rounds every corner and view is re-judged (a
+gross outlier biases the first fit, so good corners near it come back); later rejections are final (as in mrcal:
+the loop then settles even when the model cannot fit the lens exactly). Then the solution is linearised with radarcal's
 :class:`~radarcal.camera.Camera` (the one projection function; numeric Jacobian, vectorised over all corners) to get
 per-parameter σ = sqrt(diag(σ_obs² (JᵀJ)⁻¹)), σ_obs from the inlier residuals.
 
@@ -145,18 +147,32 @@ def solve_once(object_points: list[np.ndarray], image_points: list[np.ndarray], 
     if len(object_points) < 3:
         raise SolveError(f"need at least 3 views, have {len(object_points)}")
     size = (int(image_size[0]), int(image_size[1]))
-    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 300, 1e-12)
     try:
         if model == "fisheye":
             obj = [np.asarray(o, np.float64).reshape(1, -1, 3) for o in object_points]
             img = [np.asarray(i, np.float64).reshape(1, -1, 2) for i in image_points]
             flags = cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW
-            K = np.eye(3)
-            D = np.zeros((4, 1))
             if guess is not None and guess.model == "fisheye":
-                K, D = guess.K.copy(), guess.dist.reshape(4, 1).copy()
-                flags |= cv2.CALIB_USE_INTRINSIC_GUESS
-            rms, K, D, rv, tv = cv2.fisheye.calibrate(obj, img, size, K, D, flags=flags, criteria=crit)
+                starts = [(guess.K.copy(), guess.dist.reshape(4, 1).copy())]
+            else:
+                # OpenCV's own start (f from the image size) diverges on wide lenses (RMS 221 px on a rendered 190°
+                # set, 0.037 px from a better start): try a ladder of equidistant focal lengths, keep the best
+                base = min(size) / np.pi
+                starts = [(np.array([[f, 0, (size[0] - 1) / 2], [0, f, (size[1] - 1) / 2], [0, 0, 1.0]]), np.zeros((4, 1))) for f in base * np.array([0.7, 1.0, 1.4, 2.0, 3.0, 4.5])]
+            best = None
+            last_err: Exception | None = None
+            for K0, D0 in starts:
+                try:
+                    out = cv2.fisheye.calibrate(obj, img, size, K0, D0, flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=crit)
+                except cv2.error as e:
+                    last_err = e
+                    continue
+                if np.isfinite(out[0]) and (best is None or out[0] < best[0]):
+                    best = out
+            if best is None:
+                raise last_err if last_err is not None else SolveError("fisheye solve failed")
+            rms, K, D, rv, tv = best
             dist = np.asarray(D, float).ravel()
         else:
             obj = [np.asarray(o, np.float32).reshape(-1, 3) for o in object_points]
@@ -248,11 +264,13 @@ def calibrate(
     k_sigma: float = 4.0,
     max_outlier_fraction: float = 0.3,
     view_rms_factor: float = 3.0,
-    max_iterations: int = 8,
+    max_iterations: int = 15,
+    free_iterations: int = 3,
 ) -> Calibration:
     """Calibrate from per-view board points (N_v,3) and image corners (N_v,2); see the module doc.
 
-    Corner rule: |r| > k_sigma · σ (σ = robust per-coordinate σ of the inlier residuals, from their median).
+    Corner rule: |r| > k_sigma · σ (σ = robust per-coordinate σ from the median |r| of all corners of used views);
+    after ``free_iterations`` rounds rejected corners and views stay rejected.
     View rule: more than ``max_outlier_fraction`` of its corners are outliers, or its inlier RMS exceeds
     ``view_rms_factor`` × the expected RMS (√2 σ). At least half of the views (and 3) are always kept.
     """
@@ -279,18 +297,27 @@ def calibrate(
         res = _residuals_all(cam, model, rvecs, tvecs, obj, img)
         if not reject or it >= max_iterations:
             break
-        r_in = np.concatenate([res[v][inl[v]] for v in sel])
-        sigma = max(float(np.sqrt(np.median(np.sum(r_in**2, axis=1)) / (2 * np.log(2)))), 1e-3)
+        # σ from the median over ALL corners of the used views (robust; does not shrink as outliers go, so the
+        # monotone rejection settles instead of eating into the tails of a model that cannot fit exactly)
+        r_all = np.concatenate([res[v] for v in sel])
+        r_all = r_all[np.all(np.isfinite(r_all), axis=1)]
+        sigma = max(float(np.sqrt(np.median(np.sum(r_all**2, axis=1)) / (2 * np.log(2)))), 1e-3)
         thr = k_sigma * sigma
         new_inl = []
         new_used = np.ones(V, bool)
         new_reasons = [""] * V
         badness = np.zeros(V)
+        monotone = it > free_iterations
         for v in range(V):
+            if monotone and not used[v]:  # late rejections are final (stable on misfit models, terminates)
+                new_inl.append(inl[v])
+                new_used[v], new_reasons[v], badness[v] = False, reasons[v], 1e9
+                continue
             n = np.linalg.norm(res[v], axis=1)
-            m = np.isfinite(n) & (n < thr)
+            m_all = np.isfinite(n) & (n < thr)
+            m = (inl[v] & m_all) if monotone else m_all
             new_inl.append(m)
-            frac_out = 1.0 - m.mean()
+            frac_out = 1.0 - m_all.mean()
             rms_v = float(np.sqrt(np.mean(n[m] ** 2))) if m.sum() else np.inf
             if not np.all(np.isfinite(res[v])):
                 new_used[v], new_reasons[v] = False, "outlier: pose failed"
@@ -305,15 +332,27 @@ def calibrate(
                 new_used[v], new_reasons[v] = False, "outlier: fewer than 6 corners fit"
                 badness[v] = 1
         keep_min = max(3, (V + 1) // 2)
-        if new_used.sum() < keep_min:  # keep the least bad views
+        if new_used.sum() < keep_min:  # keep the least bad views, with all their corners
             order = np.argsort(badness, kind="stable")
             new_used[:] = False
             new_used[order[:keep_min]] = True
             for v in order[:keep_min]:
                 new_reasons[v] = ""
-        changed = (not np.array_equal(new_used, used)) or any(not np.array_equal(a, b) for a, b in zip(new_inl, inl))
+                if new_inl[v].sum() < 6:
+                    new_inl[v] = np.all(np.isfinite(res[v]), axis=1)
+        n_flips = sum(int(np.sum(a != b)) for a, b in zip(new_inl, inl))
+        views_changed = not np.array_equal(new_used, used)
+        n_total = sum(len(o) for o in obj)
+        settled = n_flips == 0 or (monotone and n_flips <= max(1, 0.001 * n_total))  # a trickle of tail corners
         inl, used, reasons = new_inl, new_used, new_reasons
-        if not changed:
+        if settled and not views_changed:
+            if n_flips:  # the last few rejections: one more solve so that the result matches the inlier set
+                sel = np.flatnonzero(used)
+                cam, rv_u, tv_u, _ = solve_once([obj[v][inl[v]] for v in sel], [img[v][inl[v]] for v in sel], image_size, model, cam)
+                rvecs[sel], tvecs[sel] = rv_u, tv_u
+                for v in np.flatnonzero(~used):
+                    rvecs[v], tvecs[v] = _pnp(cam, obj[v], img[v])
+                res = _residuals_all(cam, model, rvecs, tvecs, obj, img)
             break
     # make the final state consistent: 'inl' and 'used' are what the last solve used when we broke on no change
     return _finish(cam, model, rvecs, tvecs, obj, img, res, inl, used, reasons, it)

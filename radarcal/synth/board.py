@@ -43,6 +43,7 @@ __all__ = [
     "render_blank",
     "board_truth_pixels",
     "write_board_set",
+    "video_trajectory",
     "load_board_truth",
     "BoardTruth",
     "TRUTH_FORMAT",
@@ -303,7 +304,7 @@ class _RayGrid:
     drays_du: np.ndarray  # (h, w, 3) d ray / d u (per pixel)
     drays_dv: np.ndarray  # (h, w, 3)
     valid: np.ndarray  # (h, w) bool: exact ray, neighbours valid too
-    lens: np.ndarray  # (h, w) bool: inside the lens' image circle (all True for pinhole)
+    lens: np.ndarray  # (h, w) float32 in [0, 1]: pixel area inside the lens' image circle (all 1 for pinhole)
 
 
 def _unproject_grid(camera: Camera, step: int = 8, tol: float = 1e-13, max_iter: int = 12) -> tuple[np.ndarray, np.ndarray]:
@@ -381,7 +382,7 @@ def _fisheye_rays(camera: Camera, max_theta: float) -> tuple[np.ndarray, np.ndar
 
 def _ray_grid(camera: Camera, fisheye_fov_deg: float) -> _RayGrid:
     w, h = camera.image_size
-    lens = np.ones((h, w), bool)
+    lens = np.ones((h, w), np.float32)
     if camera.model == "fisheye":
         th = np.radians(fisheye_fov_deg / 2)
         rays, ok = _fisheye_rays(camera, th + np.radians(3.0))
@@ -389,7 +390,9 @@ def _ray_grid(camera: Camera, fisheye_fov_deg: float) -> _RayGrid:
         theta_d = th * (1 + t2 * (d[0] + t2 * (d[1] + t2 * (d[2] + t2 * d[3]))))
         u, v = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
         Kinv = np.linalg.inv(camera.K)
-        lens = np.linalg.norm(np.stack([u, v], axis=-1) @ Kinv[:2, :2].T + Kinv[:2, 2], axis=-1) <= theta_d
+        r_d = np.linalg.norm(np.stack([u, v], axis=-1) @ Kinv[:2, :2].T + Kinv[:2, 2], axis=-1)
+        f = 0.5 * (camera.fx + camera.fy)
+        lens = np.clip(0.5 + (theta_d - r_d) * f, 0.0, 1.0).astype(np.float32)  # anti-aliased circle edge
     else:
         xy, ok = _unproject_grid(camera)
         xy = np.where(ok[..., None], xy, 0.0)
@@ -549,7 +552,8 @@ class BoardRenderer:
             img = (s.black * frac + (s.white - s.black) * refl) + (1.0 - frac) * bg
         img = img * np.float32(gain)
         if self.camera.model == "fisheye":
-            img = np.where(self.grid.lens, img, np.float32(4.0))
+            lens = self.grid.lens
+            img = lens * img + (1.0 - lens) * np.float32(4.0)
         return img.astype(np.float32)
 
     def finish(self, radiance: np.ndarray, rng: np.random.Generator, blur_sigma: float | None = None,
@@ -786,7 +790,8 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
                     settings: RenderSettings = RenderSettings(), coverage: str = "full", n_partial: int = 2,
                     n_blank: int = 2, n_corrupt: int = 1, bad_view: bool = False, bad_px: float = 1.5,
                     n_blurred: int = 0, blur_streak: tuple[float, float] = (0.01, 0.016),
-                    stereo: tuple[Camera, np.ndarray] | None = None, command: str = "", progress=None) -> dict:
+                    stereo: tuple[Camera, np.ndarray] | None = None, video_seconds: float = 0.0, video_fps: float = 10.0,
+                    command: str = "", progress=None) -> dict:
     """Write ``n_views`` board PNGs (+ blank and corrupt files) and ``truth.json`` into ``out_dir``; return the truth.
 
     Deterministic: the same arguments give bit-identical files. The corrupt file is a rendered board PNG
@@ -798,13 +803,16 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     ``stereo=(camera1, T_cam1_cam0)``: every view is also rendered through a second camera; images go to
     ``cam0/img_NNN.png`` and ``cam1/img_NNN.png`` (same name = same instant) and the truth gains a ``stereo`` block
     and ``*_cam1`` keys per view. Mono sets (the default) write ``img_NNN.png`` at the top level.
+
+    ``video_seconds > 0`` also writes ``video.avi`` (MJPG, camera 0): the board moving smoothly through the full
+    views' poses, dwelling at each, motion-blurred in proportion to its speed; per-frame truth under ``video``.
     """
     import cv2
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if (out / "truth.json").is_file():  # a previous set lives here: drop its images so no stale file survives
-        for pattern in ("img_[0-9][0-9][0-9].png", "cam[01]/img_[0-9][0-9][0-9].png"):
+        for pattern in ("img_[0-9][0-9][0-9].png", "cam[01]/img_[0-9][0-9][0-9].png", "video.avi"):
             for old in out.glob(pattern):
                 old.unlink()
     prefix0, prefix1 = ("cam0/", "cam1/") if stereo is not None else ("", "")
@@ -897,6 +905,13 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
         "files": file_lists("file"),
         "views": entries,
     }
+    if video_seconds > 0:
+        keyviews = [j for j, v in enumerate(views) if v.kind == "full"] or list(range(len(views)))
+        if keyviews:
+            file_of = {int(j): entries[i]["file"] for i, j in enumerate(order)}
+            truth["video"] = _write_video(out, rigs[0][2], spec, [views[j].T_cam_board for j in keyviews],
+                                          video_seconds, video_fps, seed)
+            truth["video"]["keyframe_files"] = [file_of[j] for j in keyviews][: len(truth["video"]["keyframes"])]
     if stereo is not None:
         cam1, T10 = rigs[1][0], rigs[1][1]
         truth["stereo"] = {"model1": model_name(cam1), "camera1": cam1.to_dict(), "T_cam1_cam0": np.round(T10, 12).tolist(),
@@ -905,6 +920,71 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     tmp.write_text(json.dumps(truth, indent=1) + "\n")
     tmp.replace(out / "truth.json")
     return truth
+
+
+def video_trajectory(spec: BoardSpec, keyposes: list[np.ndarray], n_frames: int,
+                     offset: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth board trajectory through ``keyposes`` (T_cam_board list): (n_frames, 4, 4) poses, keyframe indices.
+
+    The board dwells at each key pose (smoothstep easing: zero speed there) and moves fastest half-way between,
+    rotation by slerp, board centre linearly. ``offset`` shifts the sampling instants by that many frames (clipped
+    to the trajectory), e.g. +-0.5 for the pose at the start/end of an exposure.
+    """
+    from scipy.spatial.transform import Rotation, Slerp
+
+    keys = [np.asarray(T, float) for T in keyposes]
+    if len(keys) == 1:
+        keys = keys * 2
+    n_seg = len(keys) - 1
+    step = n_seg / max(n_frames - 1, 1)
+    s0 = np.linspace(0.0, n_seg, n_frames)
+    s = np.clip(s0 + offset * step, 0.0, n_seg)
+    seg = np.minimum(np.floor(s).astype(int), n_seg - 1)
+    a = s - seg
+    a = a * a * (3 - 2 * a)  # smoothstep: zero speed at the key poses
+    rots = Slerp(np.arange(len(keys)), Rotation.from_matrix(np.stack([T[:3, :3] for T in keys])))(seg + a).as_matrix()
+    centres = np.stack([T[:3, :3] @ spec.centre + T[:3, 3] for T in keys])
+    c = centres[seg] * (1 - a)[:, None] + centres[seg + 1] * a[:, None]
+    T = np.tile(np.eye(4), (n_frames, 1, 1))
+    T[:, :3, :3] = rots
+    T[:, :3, 3] = c - rots @ spec.centre
+    key_idx = sorted({int(np.argmin(np.abs(s0 - k))) for k in range(min(len(keyposes), n_seg + 1))})
+    return T, np.asarray(key_idx)
+
+
+def _write_video(out: Path, renderer: BoardRenderer, spec: BoardSpec, keyposes: list[np.ndarray], seconds: float,
+                 fps: float, seed: int, exposure: float = 0.5) -> dict:
+    """Render the trajectory through ``keyposes`` as ``video.avi`` (MJPG); return its truth block."""
+    import cv2
+
+    cam = renderer.camera
+    n_seg = max(1, len(keyposes) - 1)
+    per_seg = max(1, int(round((seconds * fps - 1) / n_seg)))
+    n = per_seg * n_seg + 1  # ~seconds * fps frames, with every key pose exactly on a frame
+    poses, keys = video_trajectory(spec, keyposes, n)
+    centre = spec.centre[None, :]
+    # image motion of the board centre while the shutter is open (exposure x frame interval, centred on the frame)
+    before = video_trajectory(spec, keyposes, n, offset=-exposure / 2)[0]
+    after = video_trajectory(spec, keyposes, n, offset=+exposure / 2)[0]
+    motion = np.array([cam.project_from(a, centre)[0][0] - cam.project_from(b, centre)[0][0] for b, a in zip(before, after)])
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 2]))
+    writer = cv2.VideoWriter(str(out / "video.avi"), cv2.VideoWriter_fourcc(*"MJPG"), float(fps), cam.image_size, isColor=False)
+    if not writer.isOpened():  # pragma: no cover - OpenCV builds without a video backend
+        raise OSError("cannot open an MJPG video writer")
+    frames = []
+    try:
+        for i, T in enumerate(poses):
+            streak = float(np.hypot(*motion[i])) if np.all(np.isfinite(motion[i])) else 0.0
+            angle = float(np.arctan2(motion[i][1], motion[i][0])) if streak > 0 else 0.0
+            streak = streak if streak >= 1.0 else 0.0
+            writer.write(renderer.render(T, rng, motion_blur_px=streak, motion_angle=angle))
+            _, vis = board_truth_pixels(cam, spec, T)
+            frames.append({"T_cam_board": np.round(T, 12).tolist(), "n_visible": int(vis.sum()),
+                           "motion_blur_px": round(streak, 4), "keyframe": bool(i in set(keys.tolist()))})
+    finally:
+        writer.release()
+    return {"file": "video.avi", "codec": "MJPG", "fps": float(fps), "n_frames": n, "exposure_fraction": exposure,
+            "keyframes": keys.tolist(), "frames": frames}
 
 
 _ENTRY_ORDER = ("file", "kind", "has_board", "readable", "gain", "T_cam_board", "corners_uv", "visible", "corner_ids",

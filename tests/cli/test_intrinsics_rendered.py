@@ -127,3 +127,56 @@ def test_rendered_1280x1024_accuracy(tmp_path, capsys):
     kinds = _kinds(out)
     rejected = {k.rsplit("/", 1)[-1]: v for k, v in s["rejected"].items()}
     assert all(rejected[f].startswith("outlier") for f, k in kinds.items() if k == "bad")
+
+
+def test_rendered_fisheye_auto_model(tmp_path, capsys):
+    """A 190° equidistant lens (OpenCV's own fisheye start diverges here): --model auto picks fisheye and
+    recovers the truth; pinhole5 is rejected by its RMS."""
+    out = tmp_path / "fish"
+    _synth(out, "--model", "fisheye", "--size", "640x512", "--views", "12", "--partial", "0", "--blank", "0", "--corrupt", "0", "--seed", "7")
+    code, o, err = _intrinsics(capsys, str(out), "--cols", "9", "--rows", "6", "--square", "0.025", "--model", "auto", "--bundle", str(tmp_path / "b.yaml"), "--json")
+    assert code == 0, err
+    s = json.loads(o)["cameras"][0]
+    assert s["model"] == "fisheye"
+    truth = load_board_truth(out)
+    K = np.asarray(s["K"])
+    for i, j, key in ((0, 0, "fx"), (1, 1, "fy"), (0, 2, "cx"), (1, 2, "cy")):
+        true = truth.camera.K[i, j]
+        assert abs(K[i, j] - true) < 3 * s["sigma"][key] + 0.05, (key, K[i, j], true)
+    rows = {r["model"]: r for r in s["model_choice"]["table"]}
+    assert rows["pinhole5"]["rms_px"] > 5 * s["rms_px"]
+
+
+def test_rendered_charuco_stereo_pairs_by_ids(tmp_path, capsys):
+    out = tmp_path / "cst"
+    _synth(out, "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--dict", "DICT_4X4_1000", "--size", "640x480", "--views", "9", "--partial", "1", "--blank", "0", "--corrupt", "0", "--stereo", "0.1", "--seed", "6")
+    code, o, err = _intrinsics(capsys, str(out / "cam0"), "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--right", str(out / "cam1"), "--bundle", str(tmp_path / "b.yaml"), "--json", "--no-crossval")
+    assert code == 0, err
+    t = json.loads((out / "truth.json").read_text())
+    s = json.loads(o)["stereo"]
+    assert s["pairs"] >= 8
+    _deg, m = geometry.pose_error(np.asarray(s["T_cam1_cam0"]), np.asarray(t["stereo"]["T_cam1_cam0"]))
+    assert m < 3 * s["sigma"]["baseline_m"] + 3e-4
+    assert abs(s["baseline_m"] - 0.1) < 3 * s["sigma"]["baseline_m"] + 3e-4
+
+
+def test_rendered_video_frames_sampled_sharp_and_novel(tmp_path, capsys):
+    """`synth board --video`: the board moves between 10 key poses (motion-blurred in between, median ≈ 12 px per
+    exposure). The kept frames are sharp, one per pose, and give the true intrinsics."""
+    out = tmp_path / "vid"
+    _synth(out, "--size", "640x480", "--views", "10", "--partial", "0", "--blank", "0", "--corrupt", "0", "--video", "6", "--seed", "12")
+    code, o, err = _intrinsics(capsys, str(out / "video.avi"), "--cols", "9", "--rows", "6", "--square", "0.025", "--bundle", str(tmp_path / "b.yaml"), "--json", "--no-crossval")
+    assert code == 0, err
+    s = json.loads(o)["cameras"][0]
+    t = json.loads((out / "truth.json").read_text())
+    frames = t["video"]["frames"]
+    from radarcal.bundle import load_session
+
+    arrays, _ = load_session(load_bundle(tmp_path / "b.yaml"), "intrinsics/cam0")
+    kept = [int(n.rsplit("#frame", 1)[1]) for n in arrays["names"]]
+    assert 8 <= len(kept) <= 14 and len(kept) < len(frames) / 3
+    assert max(frames[k]["motion_blur_px"] for k in kept) < 5.0
+    truth = load_board_truth(out)
+    K = np.asarray(s["K"])
+    for i, j, key in ((0, 0, "fx"), (1, 1, "fy"), (0, 2, "cx"), (1, 2, "cy")):
+        assert abs(K[i, j] - truth.camera.K[i, j]) < 3 * s["sigma"][key] + 0.05, key

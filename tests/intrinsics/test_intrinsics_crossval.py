@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-import pytest
 
 from radarcal.camera import Camera
 from radarcal.intrinsics.crossval import choose_model, cross_validate, projection_difference
