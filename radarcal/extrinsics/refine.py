@@ -49,10 +49,17 @@ class RefineOptions:
     coarse_step_deg: float = 1.0
     fix_translation: bool = False
     min_matches: int = 60
+    min_match_fraction: float = 0.35  # matched share of the LiDAR edge samples that project into the image
     translation_prior_m: float = 0.0  # sigma of a prior pulling the translation towards the initial guess (0: none)
     rotation_only_stages: int = 2  # the first (coarsest) radii solve rotation only
     translation_starts_m: float = 0.0  # extra starts with the camera centre moved +-this along each axis (0: none)
-    n_starts: int = 3  # distinct coarse-search minima refined in full (plus the initial guess itself)
+    n_starts: int = 3
+    stability_checks: int = 4  # restarts from the result (0: none)
+    stability_deg: float = 1.0
+    stability_m: float = 0.1
+    stability_full: bool = True  # restarts run the whole coarse-to-fine schedule (for larger stability_deg/m)
+    stability_tol_deg: float = 0.1
+    stability_tol_m: float = 0.02  # distinct coarse-search minima refined in full (plus the initial guess itself)
 
 
 @dataclass
@@ -193,7 +200,8 @@ def _weighted_fn(x, T0, scenes, matches, fix_t, sw, t_prior, sigma_t, f_scale):
     if fix_t or sigma_t <= 0:
         return r
     t = _apply(x, T0)[:3, 3]
-    return np.concatenate([r, f_scale * (t - t_prior) / sigma_t])
+    # matches along one edge are strongly correlated: weigh the prior as if ~1 in 10 matches were independent
+    return np.concatenate([r, np.sqrt(max(len(r), 10) / 10.0) * f_scale * (t - t_prior) / sigma_t])
 
 
 def _run_stages(scenes, T, o, t_prior=None):
@@ -261,6 +269,24 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
         if best is None or fine < best[0]:
             best = (fine, T, conv)
     _, T, converged_stage = best
+    # stability check: restarts from the result moved by stability_deg / stability_m (whole coarse-to-fine schedule)
+    # must come back to it; a result that the restarts leave is reported as not converged
+    stable = True
+    if o.stability_checks > 0:
+        rng = np.random.default_rng(12345)
+        fine_opts = o if o.stability_full else RefineOptions(**{**o.__dict__, "radii_px": o.radii_px[-3:], "rotation_only_stages": 0})
+        for rnd in range(2):
+            improved = False
+            for k in range(o.stability_checks):
+                Tk = geometry.perturb_T(T, o.stability_deg, o.stability_m, rng)
+                Tk2, conv_k, _ = _run_stages(scenes, Tk, fine_opts, t_prior=T0[:3, 3])
+                fk = _score_all(scenes, Tk2, cap=o.radii_px[-1])
+                dd, dm = geometry.pose_error(Tk2, T)
+                history.append({"stage": "stability", "round": rnd, "check": k, "score_px": fk, "back_deg": dd, "back_m": dm})
+                if dd > o.stability_tol_deg or dm > o.stability_tol_m:
+                    stable = False
+            if not improved:
+                break
     # final matching, statistics
     matches = [match_edges(sc, T, o.radii_px[-1], o.k_neighbours, o.max_angle_deg) for sc in scenes]
     n_match = sum(len(m[0]) for m in matches)
@@ -282,14 +308,24 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
             sigma = np.sqrt(np.abs(np.diag(cov)))
         except np.linalg.LinAlgError:
             pass
+    n_in_view = 0
+    for sc in scenes:
+        uv_, valid_, _ = sc.camera.project_from(T, sc.lidar.points)
+        n_in_view += int((valid_ & sc.camera.in_image(uv_, 2.0)).sum())
+    match_fraction = n_match / max(n_in_view, 1)
     obs = _observability(scenes, matches, T, JtJ, n_match)
+    obs["match_fraction"] = match_fraction
     warnings += obs["warnings"]
     score_after = _score_all(scenes, T)
     # convergence verdict
     moved_deg, moved_m = geometry.pose_error(T, T0)
-    ok = converged_stage and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
-    if not converged_stage:
-        msg = "did not converge: the update was still moving at the finest radius (increase --max-iter or improve the initial guess)"
+    ok = converged_stage and stable and match_fraction >= o.min_match_fraction and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
+    if match_fraction < o.min_match_fraction:
+        msg = f"did not converge: only {100 * match_fraction:.0f} % of the LiDAR edge samples in view found an image edge (< {100 * o.min_match_fraction:.0f} %) - probably a wrong minimum"
+    elif converged_stage and not stable:
+        msg = f"did not converge: restarts from the result ({o.stability_deg:g} deg / {o.stability_m * 100:g} cm away) settle elsewhere - the minimum is not well defined (more or closer structure, another scene, or a better initial guess)"
+    elif not converged_stage:
+        msg = f"did not converge: the update was still moving at the finest radius after {o.max_rematch} re-matchings (improve the initial guess or add scenes)"
     elif n_match < o.min_matches:
         msg = f"did not converge: only {n_match} edge matches at the finest radius (< {o.min_matches}); the initial guess is probably too far off or the scene has too few plane-plane edges"
     elif not (np.isfinite(rms) and rms < 2.5 * o.loss_scale_px):

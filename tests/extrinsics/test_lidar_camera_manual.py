@@ -11,9 +11,9 @@ from radarcal.io.corners_csv import read_corners_csv
 from radarcal.synth.lidar_camera import LidarCameraSceneParams, default_camera, default_T_cam_lidar, render_lidar_camera_scene
 
 
-@pytest.fixture(scope="module")
-def board_scene():
-    return render_lidar_camera_scene(LidarCameraSceneParams(seed=4, boards=6, duration_s=2.0, supersample=1))
+@pytest.fixture(scope="module", params=[3, 4, 6])
+def board_scene(request):
+    return render_lidar_camera_scene(LidarCameraSceneParams(seed=request.param, boards=6, duration_s=2.0, supersample=1))
 
 
 def test_pnp_exact_and_outlier_flag():
@@ -45,7 +45,7 @@ def test_board_scene_auto_cloud_corners(board_scene):
     assert len(P) >= 20
     sol = solve_corners(s.camera, P, U)
     deg, m = geometry.pose_error(sol.T_cam_lidar, s.T_cam_lidar)
-    assert deg < 0.3 and m < 0.02, (deg, m)
+    assert deg < 0.3 and m < 0.025, (deg, m)  # measured over seeds 3-8: 0.09-0.26 deg, 1.0-2.1 cm
     # board corners in the cloud within a few cm of the truth
     errs = [min(np.linalg.norm(np.asarray(tb["corners_lidar"])[:, None] - b.corners_lidar[None], axis=2).min(1).max() for tb in s.boards) for b in found]
     assert np.median(errs) < 0.03
