@@ -246,7 +246,7 @@ def test_report_renders_in_chromium(full_report, tmp_path):
     out, _ = full_report
     heights = _display_heights(out.read_text())
     assert len(heights) == 16
-    img = _screenshot(out, tmp_path / "report.png", (1300, 16000))  # tall enough for the whole page
+    img = _screenshot(out, tmp_path / "report.png", (1300, int(sum(heights)) + 2500))  # tall enough for the whole page
     gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     assert gray.std() > 20, "the rendered page is blank"
     # every figure was decoded and laid out at its full size (a broken image collapses to an icon): the page is at
@@ -264,13 +264,19 @@ def test_report_renders_in_chromium(full_report, tmp_path):
     red = (r > 150) & (g < 90) & (b < 90)  # tab:red = (214, 39, 40)
     assert red[:3000].sum() > 300, "the outlier bar of the per-view error figure is not visible"
 
-    # negative control: the same page with one figure's PNG corrupted renders shorter than its figures
-    html = out.read_text()
-    i = html.index("base64,") + 7
+    # negative control: a page with two figures, the second one's PNG corrupted, ends above the stacked figures
+    from radarcal.report import intrinsics as ri
+
+    figs = [ri.per_view_error_figure(["a", "b"], np.array([1.0, 2.0])), ri.coverage_figure(np.array([[10.0, 10.0]]), (640, 480))]
+    good = render_html("control", [Section("two figures", figs)], dpi=40)
+    i = good.rindex("base64,") + 7
     broken = tmp_path / "broken.html"
-    broken.write_text(html[:i] + "AAAA" + html[i + 4000 :])
-    img_b = _screenshot(broken, tmp_path / "broken.png", (1300, 16000))
-    assert _content_bottom(img_b) < _content_bottom(img) - heights[0] / 2
+    broken.write_text(good[:i] + "AAAA" + good[i + 400 :])
+    h = _display_heights(good)
+    ok_page, bad_page = tmp_path / "ok.html", broken
+    ok_page.write_text(good)
+    assert _content_bottom(_screenshot(ok_page, tmp_path / "ok.png", (1000, 2000))) >= sum(h)
+    assert _content_bottom(_screenshot(bad_page, tmp_path / "bad.png", (1000, 2000))) < sum(h) - h[1] / 2
 
 
 def test_stereo_section_per_pair_rms():
