@@ -57,7 +57,8 @@ class RefineOptions:
     stability_checks: int = 4  # restarts from the result (0: none)
     stability_deg: float = 1.0
     stability_m: float = 0.1
-    stability_full: bool = True  # restarts run the whole coarse-to-fine schedule (for larger stability_deg/m)
+    stability_full: bool = True
+    stability_margin: float = 0.05  # relative alignment-cost difference that tells two minima apart  # restarts run the whole coarse-to-fine schedule (for larger stability_deg/m)
     stability_tol_deg: float = 0.1
     stability_tol_m: float = 0.02  # distinct coarse-search minima refined in full (plus the initial guess itself)
 
@@ -204,6 +205,21 @@ def _weighted_fn(x, T0, scenes, matches, fix_t, sw, t_prior, sigma_t, f_scale):
     return np.concatenate([r, np.sqrt(max(len(r), 10) / 10.0) * f_scale * (t - t_prior) / sigma_t])
 
 
+def alignment_cost(scenes, T, o) -> float:
+    """Truncated alignment cost (px^2) over every LiDAR edge sample in view: squared point-to-line distance of its
+    direction-consistent match at the finest radius, capped there; samples without a match cost the cap. Used to
+    rank competing minima (unlike a plain distance-to-any-edge score it cannot be lowered by landing on clutter)."""
+    cap = o.radii_px[-1]
+    tot, n = 0.0, 0
+    for sc in scenes:
+        uv, valid, _ = sc.camera.project_from(T, sc.lidar.points)
+        n_in = int((valid & sc.camera.in_image(uv, 2.0)).sum())
+        idx, _, _, r = match_edges(sc, T, cap, o.k_neighbours, o.max_angle_deg)
+        tot += float(np.sum(np.minimum(r * r, cap * cap))) + cap * cap * max(n_in - len(idx), 0)
+        n += n_in
+    return tot / max(n, 1)
+
+
 def _run_stages(scenes, T, o, t_prior=None):
     """Coarse-to-fine re-matching and robust least squares from one start. Rotation only at the coarse radii
     (translation is weakly observed and would absorb wrong matches), all 6 parameters at the fine ones."""
@@ -275,15 +291,23 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     if o.stability_checks > 0:
         rng = np.random.default_rng(12345)
         fine_opts = o if o.stability_full else RefineOptions(**{**o.__dict__, "radii_px": o.radii_px[-3:], "rotation_only_stages": 0})
-        for rnd in range(2):
+        cost_T = alignment_cost(scenes, T, o)
+        for rnd in range(3):
             improved = False
             for k in range(o.stability_checks):
                 Tk = geometry.perturb_T(T, o.stability_deg, o.stability_m, rng)
+                if o.stability_full and o.coarse_search_deg > 0:
+                    Tk = coarse_rotation_search(scenes, Tk, min(o.coarse_search_deg, 2 * o.stability_deg), o.coarse_step_deg / 2, n_best=1)[0][0]
                 Tk2, conv_k, _ = _run_stages(scenes, Tk, fine_opts, t_prior=T0[:3, 3])
-                fk = _score_all(scenes, Tk2, cap=o.radii_px[-1])
+                ck = alignment_cost(scenes, Tk2, o)
                 dd, dm = geometry.pose_error(Tk2, T)
-                history.append({"stage": "stability", "round": rnd, "check": k, "score_px": fk, "back_deg": dd, "back_m": dm})
-                if dd > o.stability_tol_deg or dm > o.stability_tol_m:
+                history.append({"stage": "stability", "round": rnd, "check": k, "cost": ck, "cost_result": cost_T, "back_deg": dd, "back_m": dm})
+                if dd <= o.stability_tol_deg and dm <= o.stability_tol_m:
+                    continue
+                if ck < cost_T * (1 - o.stability_margin):  # a clearly better minimum nearby: adopt it, check again
+                    T, cost_T, converged_stage, improved = Tk2, ck, conv_k, True
+                    break
+                if ck < cost_T * (1 + o.stability_margin):  # a different minimum about as good: ambiguous
                     stable = False
             if not improved:
                 break
