@@ -15,6 +15,7 @@ from radarcal.cli import (
     intrinsics_cmd,
     lidar_camera_cmd,
     radar_lidar_cmd,
+    report_cmd,
     run_cmd,
     synth_board_cmd,
     synth_field_cmd,
@@ -40,6 +41,7 @@ app.command("field-pnp")(field_pnp_cmd.field_pnp)
 app.command("radar-lidar")(radar_lidar_cmd.radar_lidar)
 app.command("run")(run_cmd.run)
 app.command("hero-offset")(run_cmd.hero_offset)
+app.command("report")(report_cmd.report)
 
 # `radarcal synth <scene>`: ground-truth scene generators
 synth_app = typer.Typer(help="Generate ground-truth scenes (data in users' formats + truth.json).", no_args_is_help=True)
