@@ -34,6 +34,7 @@ __all__ = [
     "residuals",
     "projection_uncertainty",
     "param_names",
+    "board_pose",
 ]
 
 MODELS = ("pinhole5", "pinhole8", "fisheye")
@@ -194,8 +195,8 @@ def solve_once(object_points: list[np.ndarray], image_points: list[np.ndarray], 
     return cam, np.asarray(rv, float).reshape(-1, 3), np.asarray(tv, float).reshape(-1, 3), float(rms)
 
 
-def _pnp(cam: Camera, obj: np.ndarray, img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Board pose of one view given the intrinsics (for rejected views)."""
+def board_pose(cam: Camera, obj: np.ndarray, img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Board pose (rvec, tvec of T_cam_board) of one view given the intrinsics; NaN when it cannot be solved."""
     if len(obj) < 4:
         return np.full(3, np.nan), np.full(3, np.nan)
     if cam.model == "fisheye":
@@ -203,7 +204,17 @@ def _pnp(cam: Camera, obj: np.ndarray, img: np.ndarray) -> tuple[np.ndarray, np.
         K, D, pts = np.eye(3), None, xy
     else:
         K, D, pts = cam.K, cam.dist, np.asarray(img, float)
-    ok, rv, tv = cv2.solvePnP(np.asarray(obj, float), pts.astype(float), K, D, flags=cv2.SOLVEPNP_ITERATIVE)
+    obj = np.asarray(obj, float)
+    pts = pts.astype(float)
+    # OpenCV 5's SOLVEPNP_ITERATIVE asserts on fewer than 6 points; the board is planar, so IPPE (>= 4 points)
+    # gives the initial pose and LM refines it.
+    planar = np.ptp(obj[:, 2]) < 1e-9
+    try:
+        ok, rv, tv = cv2.solvePnP(obj, pts, K, D, flags=cv2.SOLVEPNP_IPPE if planar else cv2.SOLVEPNP_SQPNP)
+        if ok:
+            rv, tv = cv2.solvePnPRefineLM(obj, pts, K, D, rv, tv)
+    except cv2.error:
+        ok = False
     if not ok:
         return np.full(3, np.nan), np.full(3, np.nan)
     return rv.ravel(), tv.ravel()
@@ -293,7 +304,7 @@ def calibrate(
         tvecs = np.full((V, 3), np.nan)
         rvecs[sel], tvecs[sel] = rv_u, tv_u
         for v in np.flatnonzero(~used):
-            rvecs[v], tvecs[v] = _pnp(cam, obj[v][inl[v]] if inl[v].sum() >= 4 else obj[v], img[v][inl[v]] if inl[v].sum() >= 4 else img[v])
+            rvecs[v], tvecs[v] = board_pose(cam, obj[v][inl[v]] if inl[v].sum() >= 4 else obj[v], img[v][inl[v]] if inl[v].sum() >= 4 else img[v])
         res = _residuals_all(cam, model, rvecs, tvecs, obj, img)
         if not reject or it >= max_iterations:
             break
@@ -351,7 +362,7 @@ def calibrate(
                 cam, rv_u, tv_u, _ = solve_once([obj[v][inl[v]] for v in sel], [img[v][inl[v]] for v in sel], image_size, model, cam)
                 rvecs[sel], tvecs[sel] = rv_u, tv_u
                 for v in np.flatnonzero(~used):
-                    rvecs[v], tvecs[v] = _pnp(cam, obj[v], img[v])
+                    rvecs[v], tvecs[v] = board_pose(cam, obj[v], img[v])
                 res = _residuals_all(cam, model, rvecs, tvecs, obj, img)
             break
     # make the final state consistent: 'inl' and 'used' are what the last solve used when we broke on no change

@@ -17,14 +17,13 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.intrinsics._blas import single_thread_blas
-from radarcal.intrinsics.solve import _camera, _theta, param_names
+from radarcal.intrinsics.solve import _camera, _theta, board_pose, param_names
 
 __all__ = ["StereoResult", "stereo_calibrate", "pair_by_name"]
 
@@ -66,10 +65,9 @@ def pair_by_name(names0: list[str], names1: list[str]) -> list[tuple[int, int]]:
 
 
 def _pnp(cam: Camera, obj: np.ndarray, img: np.ndarray) -> np.ndarray:
-    rays = cam.unproject(img)
-    xy = rays[:, :2] / rays[:, 2:3]
-    _ok, rv, tv = cv2.solvePnP(obj.astype(float), xy.astype(float), np.eye(3), None, flags=cv2.SOLVEPNP_ITERATIVE)
-    return geometry.T_from_rotvec(rv.ravel(), tv.ravel())
+    """T_cam_board of one view (the one board-pose solver, :func:`radarcal.intrinsics.solve.board_pose`)."""
+    rv, tv = board_pose(cam, obj, img)
+    return geometry.T_from_rotvec(rv, tv)
 
 
 def _model_of(cam: Camera) -> str:

@@ -240,3 +240,22 @@ def test_mrcal_fisheye_corners_rational_model(shared):
     assert cal.rms_px < 1.364  # plain OpenCV rational: 1.364 px
     assert cal.iterations < 15  # converged
     assert 0 < cal.dropped_corners < 0.06 * sum(len(o) for o in obj)  # mrcal 2.2 drops 2.1 % (own model/regularisation)
+
+
+@pytest.mark.parametrize("n_points", [4, 5, 6, 54])
+def test_board_pose_with_few_corners(n_points):
+    """OpenCV 5's SOLVEPNP_ITERATIVE asserts below 6 points; board_pose must still recover a known pose."""
+    from radarcal.board import BoardSpec, object_points
+    from radarcal.camera import Camera
+    from radarcal.geometry import T_from_xyz_rpy_deg, pose_error, T_from_rotvec
+    from radarcal.intrinsics.solve import board_pose
+
+    cam = Camera((1280, 1024), [[1000.0, 0, 640], [0, 1000.0, 512], [0, 0, 1]], [-0.1, 0.05, 0.001, -0.001, 0.0])
+    obj = object_points(BoardSpec("chessboard", 9, 6, 0.025))
+    idx = np.array([0, 8, 45, 53, 22, 31])[:n_points] if n_points <= 6 else np.arange(len(obj))  # board corners first
+    T_cam_board = T_from_xyz_rpy_deg(-0.1, 0.05, 0.8, 20, -15, 5)
+    uv, valid, _ = cam.project_from(T_cam_board, obj[idx])
+    assert valid.all()
+    rv, tv = board_pose(cam, obj[idx], uv)
+    rot_deg, trans_m = pose_error(T_from_rotvec(rv, tv), T_cam_board)
+    assert rot_deg < 1e-6 and trans_m < 1e-8
