@@ -53,6 +53,7 @@ __all__ = [
     "save_bundle",
     "save_session",
     "load_session",
+    "read_session_file",
     "hash_inputs",
     "DEFAULT_RUNTIME",
     "BACKUPS_KEPT",
@@ -493,15 +494,12 @@ def save_session(bundle: Bundle, key: str, arrays: dict[str, np.ndarray], meta: 
     return bundle.path.parent / rel
 
 
-def load_session(bundle: Bundle, key: str) -> tuple[dict[str, np.ndarray], dict]:
-    """Arrays and metadata saved by :func:`save_session`."""
+def read_session_file(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
+    """Arrays and metadata of one session file written by :func:`save_session` (InputError naming the file)."""
     import json
-
-    if key not in bundle.sessions:
-        raise InputError(bundle.path, f"no session {key!r} in the bundle (sessions: {', '.join(sorted(bundle.sessions)) or 'none'})")
     import zipfile
 
-    p = (bundle.path.parent if bundle.path else Path(".")) / bundle.sessions[key]
+    p = Path(path)
     try:
         with np.load(p, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files if k != "__meta__"}
@@ -511,3 +509,10 @@ def load_session(bundle: Bundle, key: str) -> tuple[dict[str, np.ndarray], dict]
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
         raise InputError(p, f"cannot read session file ({e.__class__.__name__})") from None
     return arrays, meta
+
+
+def load_session(bundle: Bundle, key: str) -> tuple[dict[str, np.ndarray], dict]:
+    """Arrays and metadata saved by :func:`save_session` under ``key``."""
+    if key not in bundle.sessions:
+        raise InputError(bundle.path, f"no session {key!r} in the bundle (sessions: {', '.join(sorted(bundle.sessions)) or 'none'})")
+    return read_session_file((bundle.path.parent if bundle.path else Path(".")) / bundle.sessions[key])

@@ -22,7 +22,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from radarcal.bundle import Bundle, load_session
+from radarcal.bundle import Bundle, load_session, read_session_file
 from radarcal.camera import Camera
 from radarcal.errors import InputError
 from radarcal.report import field as rf
@@ -104,25 +104,15 @@ def discover_sessions(bundle: Bundle, session_dir: str | os.PathLike | None = No
         raise InputError(sdir, "session directory not found")
     for key, rel in sorted(bundle.sessions.items()):
         if sdir is not None and (sdir / Path(rel).name).is_file():
-            out[key] = _read_npz(sdir / Path(rel).name)
+            out[key] = read_session_file(sdir / Path(rel).name)
         else:
             out[key] = load_session(bundle, key)
     if sdir is not None:
         for p in sorted(sdir.glob("*.npz")):
             key = p.stem.replace("__", "/")
             if key not in out:
-                out[key] = _read_npz(p)
+                out[key] = read_session_file(p)
     return out
-
-
-def _read_npz(p: Path) -> tuple[dict, dict]:
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files if k != "__meta__"}
-            meta = json.loads(str(z["__meta__"])) if "__meta__" in z.files else {}
-    except (OSError, ValueError) as e:
-        raise InputError(p, f"cannot read session file ({e.__class__.__name__})") from None
-    return arrays, meta
 
 
 def _resolve(name: str, base: Path | None) -> Path | None:

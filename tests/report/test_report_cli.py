@@ -178,7 +178,7 @@ def test_report_session_dir_and_errors(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["sections"] == ["Bundle overview", "Intrinsics: cam0"]
     # without --session the report names the missing file
     assert cli(["report", str(bundle_path), "-o", str(out)]) == 2
-    assert "cannot read session file" in capsys.readouterr().err
+    assert "session file not found" in capsys.readouterr().err
     assert cli(["report", str(tmp_path / "nope.yaml"), "-o", str(out)]) == 2
     assert cli(["report", str(bundle_path), "-o", str(out), "--session", str(moved), "--tracks", str(tmp_path / "none.jsonl")]) == 2
     bad = tmp_path / "bad.jsonl"
