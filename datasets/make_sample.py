@@ -40,7 +40,7 @@ def generate(parent: Path) -> Path:
         os.chdir(parent)
         sys.argv = ["radarcal", "synth", "field", NAME, *ARGS]  # provenance records this command line
         with contextlib.redirect_stdout(io.StringIO()):
-            code = cli(["synth", "field", NAME, *ARGS, "--json"])
+            code = cli(["synth", "field", NAME, *ARGS])
     finally:
         os.chdir(cwd)
         sys.argv = argv0

@@ -20,6 +20,7 @@ import numpy as np
 from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.field import FieldModel
+from radarcal.synth.lidar_patterns import livox_rosette_dirs
 
 __all__ = [
     "FieldSceneConfig",
@@ -330,20 +331,6 @@ def object_kinds(field_model: FieldModel, boxes: SceneBoxes) -> list[str]:
 
 
 # --- LiDAR -----------------------------------------------------------------------------------------------------
-def livox_rosette_dirs(t: np.ndarray, fov_deg: float = 70.4) -> np.ndarray:
-    """Unit ray directions (N,3) in the LiDAR frame (x forward) at firing times t (N,) — a Risley-prism rosette:
-    two deflections of half the FOV radius rotating at incommensurate rates in opposite directions, so the
-    pattern never repeats and fills the circular FOV more densely the longer it integrates (Livox Mid-70 style)."""
-    t = np.asarray(t, float)
-    rmax = np.deg2rad(fov_deg / 2)
-    w1, w2 = 2 * np.pi * 121.57, -2 * np.pi * 77.73
-    px = 0.5 * rmax * (np.cos(w1 * t) + np.cos(w2 * t + 0.3))
-    py = 0.5 * rmax * (np.sin(w1 * t) + np.sin(w2 * t + 0.3))
-    theta = np.hypot(px, py)
-    phi = np.arctan2(py, px)
-    return np.stack([np.cos(theta), np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi)], axis=1)
-
-
 def simulate_lidar(field_model: FieldModel, boxes: SceneBoxes, T_field_lidar: np.ndarray, t0: float, n_points: int, rng: np.random.Generator, point_rate: float = 100_000.0, range_sigma: float = 0.02):
     """One LiDAR frame: points (M,3) in the LiDAR frame, intensity (M,), hit object index (M,) (see :func:`raycast`),
     true range (M,). Points that hit nothing (sky) are dropped, as a real LiDAR returns nothing for them."""

@@ -26,6 +26,7 @@ import numpy as np
 
 from radarcal import geometry
 from radarcal.camera import Camera
+from radarcal.synth.lidar_patterns import livox_rosette_dirs, spinning_directions
 
 __all__ = [
     "LidarCameraSceneParams",
@@ -101,33 +102,8 @@ class LidarCameraScene:
 # ------------------------------------------------------------------------------------------------------------------
 # LiDAR scan patterns
 def rosette_directions(n: int, fov_deg: float = 70.4, rate: float = 100_000.0, phase: float = 0.0) -> np.ndarray:
-    """Unit ray directions (n,3), LiDAR frame, of a two-prism Risley rosette (non-repetitive, circular FoV).
-
-    The deflection is the sum of two equal vectors rotating in opposite directions at incommensurate rates; its
-    magnitude reaches half the FoV. The pattern fills the disc more and more densely over time, like a Livox Mid-70.
-    """
-    t = np.arange(n, dtype=float) / rate + phase
-    a = np.radians(fov_deg) / 4.0  # each prism deflects by a quarter of the full FoV angle
-    w1 = 2 * np.pi * 121.13  # rev/s of the two prisms (incommensurate)
-    w2 = -2 * np.pi * 77.97
-    dx = a * (np.cos(w1 * t) + np.cos(w2 * t))
-    dy = a * (np.sin(w1 * t) + np.sin(w2 * t))
-    theta = np.hypot(dx, dy)
-    phi = np.arctan2(dy, dx)
-    s = np.sin(theta)
-    return np.stack([np.cos(theta), s * np.cos(phi), s * np.sin(phi)], axis=1)
-
-
-def spinning_directions(beams: int, elevation_deg: tuple[float, float], duration_s: float, spin_hz: float, rate: float) -> np.ndarray:
-    """Unit ray directions of a spinning multi-beam LiDAR (360 deg) firing ``rate`` points/s in total."""
-    per_beam = max(1, int(rate * duration_s / beams))
-    az = np.linspace(0, 2 * np.pi * spin_hz * duration_s, per_beam, endpoint=False)
-    el = np.radians(np.linspace(elevation_deg[0], elevation_deg[1], beams))
-    az_g, el_g = np.meshgrid(az, el, indexing="ij")
-    az_g = az_g.ravel() + 1e-4 * np.arange(az_g.size) % 1e-3  # tiny dither so sweeps do not repeat exactly
-    el_g = el_g.ravel()
-    ce = np.cos(el_g)
-    return np.stack([ce * np.cos(az_g), ce * np.sin(az_g), np.sin(el_g)], axis=1)
+    """Directions (n,3) of ``n`` consecutive rosette firings at ``rate`` points/s starting at time ``phase`` s."""
+    return livox_rosette_dirs(np.arange(n, dtype=float) / rate + phase, fov_deg, rates_hz=(121.13, -77.97), phase2=0.0)
 
 
 # ------------------------------------------------------------------------------------------------------------------
