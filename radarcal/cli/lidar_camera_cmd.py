@@ -162,9 +162,12 @@ def lidar_camera(
         summary["warnings"] += res.warnings
         summary["refine"] = {"converged": res.converged, "message": res.message, "rms_px": res.rms_px, "n_matches": res.n_matches, "edge_score_before_px": res.score_before,
                              "edge_score_after_px": res.score_after, "sigma_rot_deg": np.degrees(res.sigma[:3]), "sigma_trans_m": res.sigma[3:], "observability": res.observability,
+                             "sigma_bootstrap_rot_deg": np.degrees(res.sigma_bootstrap[:3]), "sigma_bootstrap_trans_m": res.sigma_bootstrap[3:],
                              "lidar_edge_samples": [len(s.lidar.points) for s in scenes]}
         residual.update({"edge_rms_px": res.rms_px, "edge_matches": res.n_matches, "edge_score_px": res.score_after, "edge_score_before_px": res.score_before})
         sigma.update({"edge_rot_deg": np.degrees(res.sigma[:3]).tolist(), "edge_trans_m": res.sigma[3:].tolist()})
+        if np.all(np.isfinite(res.sigma_bootstrap)):
+            sigma.update({"edge_bootstrap_rot_deg": np.degrees(res.sigma_bootstrap[:3]).tolist(), "edge_bootstrap_trans_m": res.sigma_bootstrap[3:].tolist()})
         arrays.update({"residuals_before": res.residuals_before, "residuals_after": res.residuals_after, **res.matches})
         for name in PARAM_NAMES:
             arrays[f"profile_{name}_offset"], arrays[f"profile_{name}_cost"] = res.profiles[name]
@@ -210,6 +213,8 @@ def lidar_camera(
             typer.echo(f"  edges: {q['message']}")
             typer.echo(f"  edge score {q['edge_score_before_px']:.2f} -> {q['edge_score_after_px']:.2f} px; sigma rot {np.array2string(np.asarray(q['sigma_rot_deg']), precision=3)} deg, "
                        f"trans {np.array2string(np.asarray(q['sigma_trans_m']) * 100, precision=2)} cm (lower bound); edge-direction spread {q['observability']['direction_spread']:.2f}")
+            typer.echo(f"  block-bootstrap sigma rot {np.array2string(np.asarray(q['sigma_bootstrap_rot_deg']), precision=3)} deg, "
+                       f"trans {np.array2string(np.asarray(q['sigma_bootstrap_trans_m']) * 100, precision=2)} cm (edge stretches resampled; biases not included)")
         for w in s["warnings"]:
             typer.echo(f"  warning: {w}")
         if s.get("overlay"):

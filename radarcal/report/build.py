@@ -425,7 +425,8 @@ def lidar_camera_data(arrays: dict, meta: dict, T_final: np.ndarray | None = Non
     """Normalise a LiDAR-camera session: the layout ``radarcal lidar-camera`` writes (``T_init``, ``T_final``,
     ``scene<k>_uv`` / ``scene<k>_line_point``, ``residuals_before/after``, ``profile_<p>_offset/_cost``, ``pnp_*``;
     meta ``pairs`` = [[image, cloud], …]) or the generic names of ``_ALIASES``. ``transform_sigma`` is the bundle
-    entry's σ (``edge_rot_deg``, ``edge_trans_m``) when the session holds none."""
+    entry's σ (block-bootstrap ``edge_bootstrap_rot_deg`` / ``_trans_m`` if stored, else the Jacobian ``edge_rot_deg``,
+    ``edge_trans_m``) when the session holds none."""
     d = LidarCameraData()
     d.points_lidar = _get(arrays, meta, "points")
     T0, T1 = _get(arrays, meta, "T_init"), _get(arrays, meta, "T_final")
@@ -452,8 +453,9 @@ def lidar_camera_data(arrays: dict, meta: dict, T_final: np.ndarray | None = Non
     s6 = _get(arrays, meta, "sigma6")
     d.sigma6 = None if s6 is None else np.asarray(s6, float).ravel()
     ts = transform_sigma or {}
-    if d.sigma6 is None and "edge_rot_deg" in ts and "edge_trans_m" in ts:
-        d.sigma6 = np.r_[np.radians(np.asarray(ts["edge_rot_deg"], float).ravel()), np.asarray(ts["edge_trans_m"], float).ravel()]
+    for rot_key, trans_key in (("edge_bootstrap_rot_deg", "edge_bootstrap_trans_m"), ("edge_rot_deg", "edge_trans_m")):  # the more honest one first
+        if d.sigma6 is None and rot_key in ts and trans_key in ts:
+            d.sigma6 = np.r_[np.radians(np.asarray(ts[rot_key], float).ravel()), np.asarray(ts[trans_key], float).ravel()]
     if "pnp_p_lidar" in arrays and "pnp_uv" in arrays:
         d.pick_p_lidar, d.pick_uv = np.asarray(arrays["pnp_p_lidar"], float), np.asarray(arrays["pnp_uv"], float)
         d.pick_flagged = np.asarray(arrays["pnp_flagged"], bool) if "pnp_flagged" in arrays else None

@@ -43,6 +43,12 @@ def test_refine_from_3deg_10cm(scene4):
     assert r.score_after < r.score_before
     assert np.all(np.isfinite(r.sigma)) and np.degrees(r.sigma[:3]).max() < 0.1
     assert set(r.profiles) == {"rx", "ry", "rz", "tx", "ty", "tz"}
+    # the block bootstrap keeps the correlation along each edge: wider than the Jacobian figure, and the true error
+    # (left-multiplied, camera frame - the parametrisation of both sigmas) is within a few of its sigmas
+    sb = r.sigma_bootstrap
+    assert np.all(np.isfinite(sb)) and np.all(sb > r.sigma), (sb, r.sigma)
+    err = geometry.T_to_rotvec(s.T_cam_lidar @ np.linalg.inv(r.T_cam_lidar))
+    assert np.max(np.abs(err) / sb) < 10, np.abs(err) / sb
     # cost profiles have their minimum near the solution
     for name, (offs, cost) in r.profiles.items():
         assert abs(np.argmin(cost) - len(cost) // 2) <= 2, name
