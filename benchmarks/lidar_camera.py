@@ -24,12 +24,15 @@ def _synth(seed, deg, m, duration=4.0, **kw):
     return render_lidar_camera_scene(LidarCameraSceneParams(seed=seed, duration_s=duration, init_deg=deg, init_m=m, **kw))
 
 
-def _run(scene_list, T_init, **opts):
-    from radarcal.extrinsics.edges import image_edges, lidar_edges
+def _run(scene_list, T_init, intensity=True, **opts):
+    """Edges + refinement as ``radarcal lidar-camera --refine`` does it (plane edges, plus reflectivity edges unless
+    ``intensity=False``)."""
+    from radarcal.extrinsics.edges import image_edges, lidar_edges, lidar_intensity_edges, merge_edges
     from radarcal.extrinsics.refine import EdgeScene, RefineOptions, refine_edges
 
     t0 = time.perf_counter()
-    scenes = [EdgeScene(s.camera, lidar_edges(s.points), image_edges(s.image)) for s in scene_list]
+    scenes = [EdgeScene(s.camera, merge_edges(lidar_edges(s.points), lidar_intensity_edges(s.points, s.intensity) if intensity else None), image_edges(s.image))
+              for s in scene_list]
     t1 = time.perf_counter()
     r = refine_edges(scenes, T_init, RefineOptions(**opts))
     return r, t1 - t0, time.perf_counter() - t1
@@ -39,39 +42,40 @@ def synth_accuracy(seeds=(1, 2, 3, 4, 5, 6)) -> None:
     from radarcal import geometry
 
     print("\n-- generated scenes (Mid-70-like rosette 4 s, 2 cm noise, 1280x1024 radtan camera) --")
-    print(f"{'seed':>4} {'start':>10} {'rot err deg':>11} {'trans err cm':>12} {'verdict':>14} {'matches':>7} {'s':>5}  ok(<0.1deg,<2cm)")
-    for deg, m in ((3.0, 0.10), (6.0, 0.20)):
+    print(f"{'edges':>17} {'seed':>4} {'start':>10} {'rot err deg':>11} {'trans err cm':>12} {'verdict':>14} {'matches':>7} {'s':>5}  ok(<0.1deg,<2cm)")
+    for deg, m, intensity in ((3.0, 0.10, False), (3.0, 0.10, True), (6.0, 0.20, False), (6.0, 0.20, True)):
         ok_n = 0
+        label = "planes+reflectivity" if intensity else "planes"
         for seed in seeds:
             s = _synth(seed, deg, m)
-            r, te, tr = _run([s], s.T_init)
+            r, te, tr = _run([s], s.T_init, intensity=intensity)
             e_deg, e_m = geometry.pose_error(r.T_cam_lidar, s.T_cam_lidar)
             ok = e_deg < 0.1 and e_m < 0.02
             ok_n += ok
             verdict = "converged" if r.converged else "NOT converged"
-            print(f"{seed:>4} {f'{deg:g}deg/{m * 100:g}cm':>10} {e_deg:11.3f} {e_m * 100:12.2f} {verdict:>14} {r.n_matches:7d} {te + tr:5.1f}  {'yes' if ok else 'no'}"
+            print(f"{label:>17} {seed:>4} {f'{deg:g}deg/{m * 100:g}cm':>10} {e_deg:11.3f} {e_m * 100:12.2f} {verdict:>14} {r.n_matches:7d} {te + tr:5.1f}  {'yes' if ok else 'no'}"
                   + ("  (claimed converged but wrong)" if r.converged and not ok else ""))
-        print(f"  -> {ok_n}/{len(seeds)} within 0.1 deg / 2 cm from {deg:g} deg / {m * 100:g} cm")
+        print(f"  -> {label}: {ok_n}/{len(seeds)} within 0.1 deg / 2 cm from {deg:g} deg / {m * 100:g} cm")
     # multi-scene joint refinement: two scenes of the same rig
     s1, s2 = _synth(5, 3.0, 0.1), None
     from radarcal.synth.lidar_camera import LidarCameraSceneParams, render_lidar_camera_scene
 
     s2 = render_lidar_camera_scene(LidarCameraSceneParams(seed=6, duration_s=4.0, T_cam_lidar=s1.T_cam_lidar))
     for name, lst in (("seed 5 alone", [s1]), ("seed 6 alone", [s2]), ("5 + 6 joint", [s1, s2])):
-        r, te, tr = _run(lst, s1.T_init)
+        r, te, tr = _run(lst, s1.T_init, intensity=False)
         e = geometry.pose_error(r.T_cam_lidar, s1.T_cam_lidar)
-        print(f"  multi-scene {name:>13}: {e[0]:.3f} deg / {e[1] * 100:.2f} cm, {'converged' if r.converged else 'NOT converged'}, {te + tr:.1f} s")
+        print(f"  multi-scene (planes only) {name:>13}: {e[0]:.3f} deg / {e[1] * 100:.2f} cm, {'converged' if r.converged else 'NOT converged'}, {te + tr:.1f} s")
 
 
-def basin(seeds=(1, 3, 4), starts=(1, 2, 4, 6, 8), trials=2) -> None:
+def basin(seeds=(1, 2, 3, 4, 5, 6), starts=(1, 2, 4, 6, 8), trials=1) -> None:
     from radarcal import geometry
 
-    print("\n-- convergence basin (rotation error at start, translation 5 cm; success = < 0.2 deg and < 3 cm) --")
+    print("\n-- convergence basin, plane + reflectivity edges (rotation error at start, translation 5 cm; success = < 0.2 deg and < 3 cm) --")
     scenes = {seed: _synth(seed, 3.0, 0.1) for seed in seeds}
-    from radarcal.extrinsics.edges import image_edges, lidar_edges
+    from radarcal.extrinsics.edges import image_edges, lidar_edges, lidar_intensity_edges, merge_edges
     from radarcal.extrinsics.refine import EdgeScene, RefineOptions, refine_edges
 
-    prepared = {seed: EdgeScene(s.camera, lidar_edges(s.points), image_edges(s.image)) for seed, s in scenes.items()}
+    prepared = {seed: EdgeScene(s.camera, merge_edges(lidar_edges(s.points), lidar_intensity_edges(s.points, s.intensity)), image_edges(s.image)) for seed, s in scenes.items()}
     print(f"{'start deg':>9} {'success':>8} {'no-search success':>18} {'mean s':>7}")
     for deg in starts:
         ok = ok_ns = n = 0

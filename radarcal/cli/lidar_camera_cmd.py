@@ -41,6 +41,7 @@ def lidar_camera(
     board_squares: str = typer.Option(None, "--board-squares", help="NX,NY squares of a chessboard painted edge to edge on the board: find its image corners automatically."),
     refine: bool = typer.Option(False, "--refine", help="Targetless edge-alignment refinement (multi-scene when several pairs)."),
     lidar_edges_kind: str = typer.Option("planes", "--lidar-edges", help="planes (plane intersections; dense Livox clouds) or depth (range jumps along scan lines; single spinning sweeps)."),
+    intensity_edges: bool = typer.Option(True, "--intensity-edges/--no-intensity-edges", help="Also align reflectivity edges (paint, lane markings) when the cloud has intensity."),
     image_edges_kind: str = typer.Option("lsd", "--image-edges", help="lsd (straight segments, less clutter) or canny."),
     voxel: float = typer.Option(0.5, "--voxel", help="Voxel size (m) for LiDAR plane fitting (0.3-0.5 dense Livox, 1.0 sparse spinning)."),
     search_deg: float = typer.Option(6.0, "--search-deg", help="Half-width of the coarse rotation search (deg; 0 disables)."),
@@ -136,7 +137,7 @@ def lidar_camera(
     # ---- targetless refinement
     converged = True
     if refine:
-        from radarcal.extrinsics.edges import crop_to_camera, image_edges, lidar_depth_edges, lidar_edges
+        from radarcal.extrinsics.edges import crop_to_camera, image_edges, lidar_depth_edges, lidar_edges, lidar_intensity_edges, merge_edges
         from radarcal.extrinsics.refine import PARAM_NAMES, EdgeScene, RefineOptions, refine_edges
 
         if lidar_edges_kind not in ("planes", "depth"):
@@ -146,11 +147,16 @@ def lidar_camera(
         scenes = []
         with err_console.status("extracting edges"):
             for p, im, c in zip(clouds, imgs, clds):
-                pts = c.points[crop_to_camera(c.points, cam, T, margin=0.3)]  # a spinning sweep is mostly out of view
+                in_view = crop_to_camera(c.points, cam, T, margin=0.3)  # a spinning sweep is mostly out of view
+                pts = c.points[in_view]
                 if lidar_edges_kind == "planes":
                     le = lidar_edges(pts, voxel=voxel, max_range=max_range)
                 else:
                     le = lidar_depth_edges(pts, max_range=max_range)
+                if intensity_edges and c.intensity is not None:
+                    li = lidar_intensity_edges(pts, np.asarray(c.intensity)[in_view], max_range=max_range)
+                    summary.setdefault("intensity_edge_samples", []).append(len(li.points))
+                    le = merge_edges(le, li)
                 if len(le.points) < 30:
                     summary["warnings"].append(f"{p}: only {len(le.points)} LiDAR edge samples (try --voxel {voxel * 2:g})")
                 scenes.append(EdgeScene(cam, le, image_edges(im, method=image_edges_kind)))

@@ -8,6 +8,11 @@ line are kept only where real points exist on both planes next to the line. This
 ("bleeding") points that bias occlusion edges, as in hku-mars livox_camera_calib, but without its per-voxel
 RANSAC loop.
 
+Reflectivity: where the LiDAR intensity jumps between neighbouring points on one surface (paint, lane markings,
+posters) the midpoint of the straddling pair is an edge sample; samples are averaged in 2 cm cells and moved onto
+their local line. These are the image edges that have no depth edge, i.e. the distractors of a purely geometric
+method, turned into features.
+
 Image: Canny edges, connected edge chains shorter than ``min_length`` px removed (connected components, no loop),
 an edge direction per pixel from the Sobel gradient, and a distance transform for scoring.
 """
@@ -20,7 +25,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["LidarEdges", "ImageEdges", "lidar_edges", "lidar_depth_edges", "image_edges", "edge_score", "crop_to_camera"]
+__all__ = ["LidarEdges", "ImageEdges", "lidar_edges", "lidar_depth_edges", "lidar_intensity_edges", "merge_edges", "image_edges", "edge_score", "crop_to_camera"]
 
 
 @dataclass
@@ -274,6 +279,58 @@ def lidar_depth_edges(points: np.ndarray, el_bin_deg: float = 0.1, max_gap_deg: 
     line = (cnt >= 3) & (w[:, 1] < 0.1 * np.maximum(w[:, 2], 1e-12))
     dirs = np.where(line[:, None], V[:, :, 2], np.nan)  # NaN: direction unknown (matched without the direction test)
     return LidarEdges(E, dirs)
+
+
+def lidar_intensity_edges(points: np.ndarray, intensity: np.ndarray | None, radius: float = 0.1, k: int = 10, min_jump: float = 25.0,
+                          rel_jump: float = 0.3, cell: float = 0.02, dir_radius: float = 0.15, max_line_rms: float = 0.01,
+                          max_range: float | None = None) -> LidarEdges:
+    """Reflectivity edges of a dense (accumulated) cloud, LiDAR frame, metres. A neighbour pair within ``radius``
+    whose intensities differ by more than ``max(min_jump, rel_jump * brighter)`` straddles a paint edge; its
+    midpoint is a sample. Samples are averaged per ``cell`` and kept where their neighbours within ``dir_radius``
+    form a line (perpendicular RMS < ``max_line_rms``), projected onto it; the direction is the line's. A cloud
+    without usable intensity (None, constant, all zero) gives no edges."""
+    empty = LidarEdges(np.zeros((0, 3)), np.zeros((0, 3)))
+    if intensity is None or len(points) < k + 1:
+        return empty
+    P = np.asarray(points, float)
+    I = np.asarray(intensity, float).ravel()
+    if len(I) != len(P) or not np.isfinite(I).all() or np.ptp(I) < min_jump:
+        return empty
+    if max_range is not None:
+        keep = np.linalg.norm(P, axis=1) < max_range
+        P, I = P[keep], I[keep]
+    d, nn = cKDTree(P).query(P, k=k + 1, distance_upper_bound=radius)
+    ok = np.isfinite(d[:, 1:])
+    nn = np.where(ok, nn[:, 1:], 0)
+    Ij = I[nn]
+    jump = ok & (Ij - I[:, None] > np.maximum(min_jump, rel_jump * np.maximum(I[:, None], Ij)))  # i dark, j bright: each pair once
+    ii, kk = np.nonzero(jump)
+    if len(ii) < 3:
+        return empty
+    q = 0.5 * (P[ii] + P[nn[ii, kk]])
+    _, inv, cnt = np.unique(_key(np.floor(q / cell).astype(np.int64)), return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    q = np.stack([np.bincount(inv, q[:, a]) for a in range(3)], 1) / cnt[:, None]
+    d2, n2 = cKDTree(q).query(q, k=min(16, len(q)), distance_upper_bound=dir_radius)
+    ok2 = np.isfinite(d2)
+    c = ok2.sum(1)
+    Q = np.where(ok2[..., None], q[np.where(ok2, n2, 0)], 0.0)
+    mean = Q.sum(1) / np.maximum(c, 1)[:, None]
+    X = np.where(ok2[..., None], Q - mean[:, None, :], 0.0)
+    w, V = np.linalg.eigh(np.einsum("nki,nkj->nij", X, X) / np.maximum(c, 1)[:, None, None])
+    dirs = V[:, :, 2]
+    line = (c >= 6) & (np.sqrt(np.maximum(w[:, 1], 0)) < max_line_rms) & (w[:, 2] > 25 * np.maximum(w[:, 1], 1e-12))
+    on_line = mean + np.sum((q - mean) * dirs, 1)[:, None] * dirs
+    return LidarEdges(on_line[line], dirs[line])
+
+
+def merge_edges(*parts: LidarEdges) -> LidarEdges:
+    """One edge set from several kinds (e.g. plane intersections + reflectivity edges)."""
+    parts = [p for p in parts if p is not None and len(p.points)]
+    if not parts:
+        return LidarEdges(np.zeros((0, 3)), np.zeros((0, 3)))
+    return LidarEdges(np.concatenate([p.points for p in parts]), np.concatenate([p.dirs for p in parts]),
+                      sum(p.n_planes for p in parts), sum(p.n_pairs for p in parts))
 
 
 # ------------------------------------------------------------------------------------------------------------------

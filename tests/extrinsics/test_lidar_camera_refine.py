@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from radarcal import geometry
-from radarcal.extrinsics.edges import edge_score, image_edges, lidar_edges
+from radarcal.extrinsics.edges import edge_score, image_edges, lidar_edges, lidar_intensity_edges, merge_edges
 from radarcal.extrinsics.refine import EdgeScene, RefineOptions, refine_edges
 from radarcal.synth.lidar_camera import LidarCameraSceneParams, render_lidar_camera_scene
 
@@ -72,6 +72,43 @@ def test_far_off_start_is_reported(scene4):
     deg, m = geometry.pose_error(r.T_cam_lidar, s.T_cam_lidar)
     # either it really got there, or it must say it did not converge
     assert (deg < 0.2 and m < 0.03) or not r.converged
+
+
+def test_intensity_edges_lie_on_paint_edges(scene4):
+    s, sc = scene4
+    li = lidar_intensity_edges(s.points, s.intensity)
+    assert len(li.points) > 300
+    # projected with the true extrinsic they sit on image edges (paint borders the plane edges cannot see)
+    from radarcal.extrinsics.refine import match_edges
+
+    uv, valid, _ = s.camera.project_from(s.T_cam_lidar, li.points)
+    n_in = int((valid & s.camera.in_image(uv, 2)).sum())
+    idx, _, _, r = match_edges(EdgeScene(s.camera, li, sc.image), s.T_cam_lidar, 3.0)
+    assert len(idx) > 0.7 * n_in and np.median(np.abs(r)) < 0.6, (len(idx), n_in, np.median(np.abs(r)))
+    # no usable intensity: no edges, no error
+    assert len(lidar_intensity_edges(s.points, np.zeros(len(s.points))).points) == 0
+    assert len(lidar_intensity_edges(s.points, None).points) == 0
+
+
+def _planes_and_paint(s):
+    return EdgeScene(s.camera, merge_edges(lidar_edges(s.points), lidar_intensity_edges(s.points, s.intensity)), image_edges(s.image))
+
+
+def test_refine_with_intensity_seed6():
+    # seed 6 is one of the scenes where plane edges alone end ~0.6 deg off ("not converged")
+    s = render_lidar_camera_scene(LidarCameraSceneParams(seed=6, duration_s=4.0))
+    r = refine_edges([_planes_and_paint(s)], s.T_init)
+    deg, m = geometry.pose_error(r.T_cam_lidar, s.T_cam_lidar)
+    assert r.converged and deg < 0.1 and m < 0.02, (deg, m, r.message)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3, 4, 5])
+def test_refine_with_intensity_seeds_slow(seed):
+    s = render_lidar_camera_scene(LidarCameraSceneParams(seed=seed, duration_s=4.0, init_deg=6.0, init_m=0.2))
+    r = refine_edges([_planes_and_paint(s)], s.T_init)
+    deg, m = geometry.pose_error(r.T_cam_lidar, s.T_cam_lidar)
+    assert r.converged and deg < 0.1 and m < 0.02, (deg, m, r.message)
 
 
 @pytest.mark.slow
