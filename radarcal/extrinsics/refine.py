@@ -341,7 +341,8 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
         for rnd in range(3):
             improved = False
             for k in range(o.stability_checks):
-                Tk = geometry.perturb_T(T, o.stability_deg, o.stability_m, rng)
+                # with a fixed (measured) translation only the rotation is restarted: a moved translation could not come back
+                Tk = geometry.perturb_T(T, o.stability_deg, 0.0 if o.fix_translation else o.stability_m, rng)
                 if o.stability_full and o.coarse_search_deg > 0:
                     Tk = coarse_rotation_search(scenes, Tk, min(o.coarse_search_deg, 2 * o.stability_deg), o.coarse_step_deg / 2, n_best=1)[0][0]
                 Tk2, conv_k, _ = _run_stages(scenes, Tk, fine_opts, t_prior=T0[:3, 3])
