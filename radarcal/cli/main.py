@@ -80,8 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     debug = "--debug" in args or os.environ.get("RADARCAL_DEBUG") == "1"
     previous, common._current_argv = common._current_argv, args
     try:
-        app(args=args, prog_name="radarcal", standalone_mode=False)
-        return 0
+        # without standalone mode click *returns* the code of a typer.Exit instead of raising it
+        return int(app(args=args, prog_name="radarcal", standalone_mode=False) or 0)
     except InputError as e:
         if debug:
             raise

@@ -68,3 +68,20 @@ def test_bad_inputs_exit_2(synth_dir, tmp_path, capsys):
     assert "bad.csv" in capsys.readouterr().err
     assert main(["lidar-camera", "-b", str(synth_dir / "bundle.yaml"), "--image", str(synth_dir / "image.png"), "--refine"]) == 2
     assert main(["lidar-camera", "-b", str(synth_dir / "bundle.yaml"), "--camera", "nope", "--corners", str(bad)]) == 2
+
+
+def test_not_converged_exits_1_and_stores_nothing(synth_dir, tmp_path, capsys):
+    import shutil
+
+    import cv2
+
+    shutil.copy(synth_dir / "bundle.yaml", tmp_path / "b.yaml")
+    before = (tmp_path / "b.yaml").read_bytes()
+    blank = tmp_path / "blank.png"
+    cv2.imwrite(str(blank), np.full((1024, 1280), 128, np.uint8))  # no image edges: nothing to align with
+    capsys.readouterr()
+    rc = main(["lidar-camera", "-b", str(tmp_path / "b.yaml"), "--image", str(blank), "--cloud", str(synth_dir / "cloud.pcd"),
+               "--init", str(synth_dir / "init.json"), "--refine", "--search-deg", "0", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 1 and not out["stored"] and not out["refine"]["converged"]
+    assert (tmp_path / "b.yaml").read_bytes() == before
