@@ -65,6 +65,7 @@ class RefineOptions:
     valley_margin: float = 0.01  # relative cost decrease that makes a valley restart the new result
     stability_tol_deg: float = 0.1
     stability_tol_m: float = 0.02  # distinct coarse-search minima refined in full (plus the initial guess itself)
+    max_translation_move_m: float = 0.5  # a camera centre that moved farther from the initial guess is not trusted
     bootstrap: int = 40  # block-bootstrap resamples for sigma_bootstrap (0: none)
     bootstrap_block_m: float = 0.5  # LiDAR edge samples in one block of this size are resampled together
 
@@ -392,8 +393,13 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     # convergence verdict
     moved_deg, moved_m = geometry.pose_error(T, T0)
     stable = stable and valley_settled
-    ok = converged_stage and stable and match_fraction >= o.min_match_fraction and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
-    if match_fraction < o.min_match_fraction:
+    # camera centre in the LiDAR frame: what a tape measure gives; a wrong minimum can drag it far away
+    centre_move = float(np.linalg.norm(geometry.invert_T(T)[:3, 3] - geometry.invert_T(T0)[:3, 3]))
+    ok = centre_move <= o.max_translation_move_m and converged_stage and stable and match_fraction >= o.min_match_fraction and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
+    if centre_move > o.max_translation_move_m:
+        msg = (f"did not converge: the camera centre moved {centre_move:.2f} m from the initial guess (> {o.max_translation_move_m:g} m) - "
+               f"a wrong minimum; give --init with the measured lever arm or add scenes")
+    elif match_fraction < o.min_match_fraction:
         msg = f"did not converge: only {100 * match_fraction:.0f} % of the LiDAR edge samples in view found an image edge (< {100 * o.min_match_fraction:.0f} %) - probably a wrong minimum"
     elif converged_stage and not valley_settled:
         msg = f"did not converge: restarts along the shift/rotation-coupled directions were still finding lower costs after {o.valley_rounds} rounds"

@@ -65,6 +65,13 @@ def test_parallel_edges_warn(scene4):
     assert any("parallel" in w or "conditioned" in w for w in r.warnings), r.warnings
 
 
+def test_implausible_centre_move_is_not_converged(scene4):
+    # the start is 10 cm off, so the right answer moves the camera centre ~10 cm: with a 1 cm limit it must say no
+    s, sc = scene4
+    r = refine_edges([sc], s.T_init, RefineOptions(max_translation_move_m=0.01, coarse_search_deg=0, stability_checks=0))
+    assert not r.converged and "camera centre moved" in r.message
+
+
 def test_far_off_start_is_reported(scene4):
     s, sc = scene4
     T0 = geometry.perturb_T(s.T_cam_lidar, 15.0, 0.5, np.random.default_rng(3))
