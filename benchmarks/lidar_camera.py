@@ -194,7 +194,7 @@ OPENCALIB_SCENES = {"auto": (("auto", "calib.png", "calib.pcd"),), "manual": (("
                     "calibanything 1+2": (("calibanything_1", "calib.jpg", "calib.pcd"), ("calibanything_2", "calib.jpg", "calib.pcd"))}
 # the configurations compared: (label, LiDAR edges, image edges, RefineOptions as the CLI builds them)
 OPENCALIB_CONFIGS = {
-    "depth 6-DoF": ("depth", dict(method="canny"), dict(translation_prior_m=0.3, coarse_search_deg=3.0)),
+    "depth 6-DoF": ("depth", dict(method="canny"), dict(translation_prior_m=0.3, coarse_search_deg=2.0, coarse_step_deg=0.5)),  # as measured before
     "intensity rot-only": ("intensity", dict(method="canny", min_length=20),
                            dict(translation_prior_m=0.3, coarse_search_deg=3.0, fix_translation=True, stability_m=0.0, min_matches=20, min_match_fraction=0.2)),
 }

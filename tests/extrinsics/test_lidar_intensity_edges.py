@@ -77,15 +77,18 @@ def test_generated_spinning_scene_intensity_edges_on_stripe_borders():
 
 @pytest.mark.slow
 def test_opencalib_goal_intensity_rotation_only(shared):
-    """Issue 5 goal on opencalib_road_64beam: from the shipped reference and from it perturbed 1 deg / 5 cm the
-    intensity-edge rotation-only refinement lands within 1 deg of the reference, its edge score (same edges for
-    both) is no worse than the reference's, and it never claims convergence more than 0.5 deg away."""
+    """Issue 5 goal on opencalib_road_64beam: started at the shipped reference, the intensity-edge rotation-only
+    refinement ends no worse than the reference by the same edge score (intensity edges vs Canny, the same edges for
+    both); started 1 deg / 5 cm off it lands within 0.5 deg of the reference with a score within 0.25 px of the
+    reference's (the 5 cm start offset stays: rotation only); it never claims convergence more than 0.5 deg away."""
     shared("opencalib_road_64beam")
     from benchmarks.lidar_camera import opencalib_runs
 
     rows = opencalib_runs(names=("auto", "manual"), configs=("intensity rot-only",), starts=((0.0, 0.0), (1.0, 0.05)), seeds=(1,))
     assert len(rows) == 4
     for r in rows:
-        assert r["rot_deg"] < 1.0, r
-        assert r["score_result"][0] <= r["score_ref"][0] + 0.1, r
         assert not (r["converged"] and r["rot_deg"] > 0.5), r
+        if r["start_deg"] == 0:
+            assert r["score_result"][0] <= r["score_ref"][0] and r["rot_deg"] < 0.5, r
+        else:
+            assert r["rot_deg"] < 0.5 and r["score_result"][0] <= r["score_ref"][0] + 0.25, r
