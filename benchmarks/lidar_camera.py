@@ -182,34 +182,113 @@ def real_mlcc_joint(pairs=(0, 2, 4, 8), seeds=(0, 1, 2)) -> None:
               f"{'converged' if r.converged else 'NOT converged'} ({time.perf_counter() - t0:.1f} s)")
 
 
-def real_opencalib() -> None:
-    from radarcal import geometry
+def _opencalib_txt(path: Path):
+    """K, D, T_cam_lidar of a Calib-Anything ``calib.txt`` (K: 9 numbers, D: 4, T: 12 row-major)."""
+    d = {}
+    for line in path.read_text().splitlines():
+        if ":" in line:
+            k, v = line.split(":", 1)
+            d[k.strip()] = np.array(v.split(), float)
+    T = np.eye(4)
+    T[:3, :4] = d["T"].reshape(3, 4)
+    return d["K"].reshape(3, 3), d["D"], T
+
+
+OPENCALIB_SCENES = {"auto": (("auto", "calib.png", "calib.pcd"),), "manual": (("manual", "0.png", "0.pcd"),),
+                    "calibanything 1+2": (("calibanything_1", "calib.jpg", "calib.pcd"), ("calibanything_2", "calib.jpg", "calib.pcd"))}
+# the configurations compared: (label, LiDAR edges, image edges, RefineOptions as the CLI builds them)
+OPENCALIB_CONFIGS = {
+    "depth 6-DoF": ("depth", dict(method="canny"), dict(translation_prior_m=0.3, coarse_search_deg=2.0, coarse_step_deg=0.5)),  # as measured before
+    "intensity rot-only": ("intensity", dict(method="canny", min_length=20),
+                           dict(translation_prior_m=0.3, coarse_search_deg=3.0, fix_translation=True, stability_m=0.0, min_matches=20, min_match_fraction=0.2)),
+}
+
+
+def opencalib_prepare(name: str, kind: str, image_kw: dict):
+    """EdgeScenes of one opencalib entry (joint entries share K, D, T) plus the yardstick edge sets (intensity edges
+    vs Canny >= 20 px, depth edges vs Canny >= 40 px: the same for reference and result) and the reference T."""
     from radarcal.camera import Camera
-    from radarcal.extrinsics.edges import crop_to_camera, edge_score, image_edges, lidar_depth_edges
-    from radarcal.extrinsics.refine import EdgeScene, RefineOptions, refine_edges
+    from radarcal.extrinsics.edges import crop_to_camera, image_edges, lidar_scan_edges
+    from radarcal.extrinsics.refine import EdgeScene
     from radarcal.io import read_cloud, read_image
 
     D = SHARED / "opencalib_road_64beam"
-    if not D.is_dir():
+    scenes, yard = [], []
+    for folder, img_name, cloud_name in OPENCALIB_SCENES[name]:
+        K, dist, T_ref = _opencalib_camera(D / folder) if (D / folder / "center_camera-intrinsic.json").is_file() else _opencalib_txt(D / folder / "calib.txt")
+        img = read_image(D / folder / img_name)
+        cam = Camera((img.shape[1], img.shape[0]), K, dist)
+        c = read_cloud(D / folder / cloud_name)
+        view = crop_to_camera(c.points, cam, T_ref, margin=0.3)  # generous: the starts are <= 2 deg (~4 % of the width) off
+        pts, inten, ring = c.points[view], c.intensity[view], None if c.ring is None else c.ring[view]
+        scenes.append(EdgeScene(cam, lidar_scan_edges(pts, inten, ring, kind), image_edges(img, **image_kw)))
+        yard.append((cam, lidar_scan_edges(pts, inten, ring, "intensity"), image_edges(img, method="canny", min_length=20),
+                     lidar_scan_edges(pts, None, None, "depth"), image_edges(img, method="canny")))
+    return scenes, yard, T_ref
+
+
+def opencalib_yardstick(yard, T) -> tuple[float, float]:
+    """(intensity-edge score, depth-edge score) in px at ``T``, sample-weighted over the scenes of one entry."""
+    from radarcal.extrinsics.edges import edge_score
+
+    out = []
+    for which in (0, 1):
+        vals = [edge_score(cam, T, le_i if which == 0 else le_d, ie_i if which == 0 else ie_d) for cam, le_i, ie_i, le_d, ie_d in yard]
+        out.append(float(sum(v * n for v, n in vals) / max(1, sum(n for _, n in vals))))
+    return out[0], out[1]
+
+
+def opencalib_runs(names=tuple(OPENCALIB_SCENES), configs=tuple(OPENCALIB_CONFIGS), starts=((0.0, 0.0), (1.0, 0.05), (2.0, 0.10)), seeds=(1, 2, 3)) -> list[dict]:
+    """Refinements from the shipped reference and from it perturbed (deg, m) with ``seeds``; one dict per run."""
+    from radarcal import geometry
+    from radarcal.extrinsics.refine import RefineOptions, refine_edges
+
+    rows = []
+    for name in names:
+        for cfg in configs:
+            kind, image_kw, opts = OPENCALIB_CONFIGS[cfg]
+            scenes, yard, T_ref = opencalib_prepare(name, kind, image_kw)
+            s_ref = opencalib_yardstick(yard, T_ref)
+            for deg, m in starts:
+                for seed in (seeds if deg > 0 else (0,)):
+                    T0 = geometry.perturb_T(T_ref, deg, m, np.random.default_rng(seed)) if deg > 0 else T_ref
+                    t0 = time.perf_counter()
+                    r = refine_edges(scenes, T0, RefineOptions(**opts))
+                    e = geometry.pose_error(r.T_cam_lidar, T_ref)
+                    rows.append({"scene": name, "config": cfg, "start_deg": deg, "start_m": m, "seed": seed, "rot_deg": e[0], "trans_m": e[1],
+                                 "score_ref": s_ref, "score_result": opencalib_yardstick(yard, r.T_cam_lidar), "score_start": opencalib_yardstick(yard, T0),
+                                 "converged": r.converged, "message": r.message, "n_matches": r.n_matches, "match_fraction": r.observability.get("match_fraction", 0.0),
+                                 "edges": int(sum(len(sc.lidar.points) for sc in scenes)), "seconds": time.perf_counter() - t0})
+    return rows
+
+
+def real_opencalib() -> None:
+    if not (SHARED / "opencalib_road_64beam").is_dir():
         print("\n-- opencalib: data set absent, skipped --")
         return
-    print("\n-- opencalib_road_64beam (spinning 64-beam, depth-discontinuity edges, Canny image edges, cloud cropped to the view):"
-          " from the shipped reference and from it perturbed 1 deg / 5 cm --")
-    for name, img_name, cloud_name in (("auto", "calib.png", "calib.pcd"), ("manual", "0.png", "0.pcd")):
-        K, dist, T_ref = _opencalib_camera(D / name)
-        img = read_image(D / name / img_name)
-        cam = Camera((img.shape[1], img.shape[0]), K, dist)
-        cloud = read_cloud(D / name / cloud_name)
-        t0 = time.perf_counter()
-        pts = cloud.points[crop_to_camera(cloud.points, cam, T_ref)]
-        le = lidar_depth_edges(pts, max_range=60)
-        sc = EdgeScene(cam, le, image_edges(img, method="canny"))
-        s_ref = edge_score(cam, T_ref, le, sc.image)[0]
-        for label, T0 in (("ref", T_ref), ("ref+1deg/5cm", geometry.perturb_T(T_ref, 1.0, 0.05, np.random.default_rng(1)))):
-            r = refine_edges([sc], T0, RefineOptions(translation_prior_m=0.3, coarse_search_deg=2.0, coarse_step_deg=0.5))
-            e = geometry.pose_error(r.T_cam_lidar, T_ref)
-            print(f"  {name:>6} start {label:>13}: {len(le.points)} edge samples; edge score ref {s_ref:.2f} px, ours {r.score_after:.2f} px; "
-                  f"ours vs ref {e[0]:.3f} deg / {e[1] * 100:.1f} cm; {'converged' if r.converged else 'NOT converged'} ({time.perf_counter() - t0:.1f} s)")
+    print("\n-- opencalib_road_64beam (single 64-beam sweeps cropped to the view; calibanything 1+2 refined jointly, one shared T):"
+          " from the shipped reference and from it perturbed 1 deg / 5 cm and 2 deg / 10 cm (seeds 1-3) --")
+    print("   yardstick (same edges for reference and result): int = intensity edges vs Canny >= 20 px, depth = depth edges vs Canny >= 40 px;"
+          " a claim is WRONG when 'converged' lands > 0.5 deg from the reference (itself good to a few tenths of a degree)")
+    print(f"{'scene':>17} {'config':>18} {'start':>9} {'vs ref deg':>10} {'cm':>5} {'int ref':>7} {'int res':>7} {'dep ref':>7} {'dep res':>7} {'match%':>6} {'verdict':>13} {'s':>4}")
+    rows = opencalib_runs()
+    for r in rows:
+        start = "ref" if r["start_deg"] == 0 else f"{r['start_deg']:g}/{r['start_m'] * 100:g} s{r['seed']}"
+        wrong = r["converged"] and r["rot_deg"] > 0.5
+        print(f"{r['scene']:>17} {r['config']:>18} {start:>9} {r['rot_deg']:10.3f} {r['trans_m'] * 100:5.1f} {r['score_ref'][0]:7.2f} {r['score_result'][0]:7.2f} "
+              f"{r['score_ref'][1]:7.2f} {r['score_result'][1]:7.2f} {100 * r['match_fraction']:6.0f} {'converged' if r['converged'] else 'NOT conv.':>13} {r['seconds']:4.0f}"
+              + ("  WRONG CLAIM" if wrong else ""))
+    print("  summary (perturbed starts):")
+    for name in OPENCALIB_SCENES:
+        for cfg in OPENCALIB_CONFIGS:
+            sel = [r for r in rows if r["scene"] == name and r["config"] == cfg and r["start_deg"] > 0]
+            if not sel:
+                continue
+            rot = np.array([r["rot_deg"] for r in sel])
+            no_worse = sum(r["score_result"][0] <= r["score_ref"][0] + 0.05 for r in sel)
+            conv = [r for r in sel if r["converged"]]
+            print(f"   {name:>17} {cfg:>18}: median {np.median(rot):.2f} deg (max {rot.max():.2f}) from the reference, {int((rot <= 0.5).sum())}/{len(sel)} within 0.5 deg; "
+                  f"int score no worse than ref {no_worse}/{len(sel)}; converged {len(conv)}/{len(sel)}, wrong claims {sum(r['rot_deg'] > 0.5 for r in conv)}")
 
 
 SECTIONS = {"synth": synth_accuracy, "basin": basin, "time": timing, "mlcc": real_mlcc, "mlcc-joint": real_mlcc_joint, "opencalib": real_opencalib}

@@ -25,7 +25,8 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["LidarEdges", "ImageEdges", "lidar_edges", "lidar_depth_edges", "lidar_intensity_edges", "merge_edges", "image_edges", "edge_score", "crop_to_camera"]
+__all__ = ["LidarEdges", "ImageEdges", "lidar_edges", "lidar_depth_edges", "lidar_intensity_edges", "lidar_scan_intensity_edges", "lidar_scan_edges",
+           "SCAN_EDGE_KINDS", "merge_edges", "image_edges", "edge_score", "crop_to_camera"]
 
 
 @dataclass
@@ -266,18 +267,7 @@ def lidar_depth_edges(points: np.ndarray, el_bin_deg: float = 0.1, max_gap_deg: 
     E = P[np.unique(fg)]
     if len(E) < 3:
         return LidarEdges(np.zeros((0, 3)), np.zeros((0, 3)))
-    tree = cKDTree(E)
-    k = min(8, len(E))
-    d, nn = tree.query(E, k=k)
-    ok_nb = np.isfinite(d) & (d < dir_radius)
-    cnt = ok_nb.sum(1)
-    nbrs = np.where(ok_nb[..., None], E[nn], 0.0)
-    mean = nbrs.sum(1) / np.maximum(cnt, 1)[:, None]
-    c = np.where(ok_nb[..., None], E[nn] - mean[:, None, :], 0.0)
-    cov = np.einsum("nki,nkj->nij", c, c) / np.maximum(cnt, 1)[:, None, None]
-    w, V = np.linalg.eigh(cov)
-    line = (cnt >= 3) & (w[:, 1] < 0.1 * np.maximum(w[:, 2], 1e-12))
-    dirs = np.where(line[:, None], V[:, :, 2], np.nan)  # NaN: direction unknown (matched without the direction test)
+    dirs = _line_dirs(E, dir_radius)  # NaN: direction unknown (matched without the direction test)
     return LidarEdges(E, dirs)
 
 
@@ -325,7 +315,7 @@ def lidar_intensity_edges(points: np.ndarray, intensity: np.ndarray | None, radi
 
 
 def merge_edges(*parts: LidarEdges) -> LidarEdges:
-    """One edge set from several kinds (e.g. plane intersections + reflectivity edges)."""
+    """One edge set from several kinds (plane intersections + reflectivity edges, depth + intensity edges)."""
     parts = [p for p in parts if p is not None and len(p.points)]
     if not parts:
         return LidarEdges(np.zeros((0, 3)), np.zeros((0, 3)))
@@ -433,3 +423,115 @@ def edge_score(camera, T_cam_lidar: np.ndarray, edges: LidarEdges, img: ImageEdg
     ij = np.round(uv[ins]).astype(int)
     d = np.minimum(img.dist[ij[:, 1], ij[:, 0]], cap_px)
     return float(d.mean()), int(ins.sum())
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# spinning multi-beam LiDARs: reflectivity steps along the scan lines, combined edge sets
+def _scan_rows(P: np.ndarray, ring: np.ndarray | None, el_bin_deg: float) -> np.ndarray:
+    """Scan-line id per point: the ``ring`` field when the cloud has one, else elevation bins of ``el_bin_deg``."""
+    if ring is not None:
+        return np.asarray(ring).astype(np.int64).ravel()
+    el = np.degrees(np.arctan2(P[:, 2], np.hypot(P[:, 0], P[:, 1])))
+    return np.floor(el / el_bin_deg).astype(np.int64)
+
+
+def _line_dirs(E: np.ndarray, dir_radius: float, k: int = 8, min_nb: int = 3, line_ratio: float = 0.1) -> np.ndarray:
+    """Unit direction per point from the main axis of its neighbours within ``dir_radius`` (NaN: no line-like
+    neighbourhood), as in :func:`lidar_depth_edges`."""
+    if len(E) < 2:
+        return np.full((len(E), 3), np.nan)
+    tree = cKDTree(E)
+    k = min(k, len(E))
+    d, nn = tree.query(E, k=k)
+    ok_nb = np.isfinite(d) & (d < dir_radius)
+    cnt = ok_nb.sum(1)
+    nbrs = np.where(ok_nb[..., None], E[nn], 0.0)
+    mean = nbrs.sum(1) / np.maximum(cnt, 1)[:, None]
+    c = np.where(ok_nb[..., None], E[nn] - mean[:, None, :], 0.0)
+    cov = np.einsum("nki,nkj->nij", c, c) / np.maximum(cnt, 1)[:, None, None]
+    w, V = np.linalg.eigh(cov)
+    line = (cnt >= min_nb) & (w[:, 1] < line_ratio * np.maximum(w[:, 2], 1e-12))
+    return np.where(line[:, None], V[:, :, 2], np.nan)
+
+
+def lidar_scan_intensity_edges(points: np.ndarray, intensity: np.ndarray, ring: np.ndarray | None = None, el_bin_deg: float = 0.1, max_gap_deg: float = 1.0,
+                          window: int = 1, min_step: float = 20.0, min_ratio: float = 1.6, max_depth_step: float = 0.3, rel_depth_step: float = 0.03,
+                          dir_radius: float = 1.5, max_range: float | None = 50.0, keep_undirected: bool = False) -> LidarEdges:
+    """Reflectivity (intensity) edges of a *spinning* multi-beam scan: painted lane markings, signs, kerb paint -
+    borders the image shows as well but that have no depth step. Along each scan line (the ``ring`` field, or
+    points binned by elevation) ordered by azimuth, the mean intensity of ``window`` points after a gap is compared
+    with the ``window`` points before it, all on one continuous surface (range steps below
+    ``max(max_depth_step, rel_depth_step * range)``, azimuth gaps below ``max_gap_deg``). A step is an edge where it
+    is at least ``min_step`` intensity units and a ratio of ``min_ratio`` (bright/dark), and the largest of its
+    neighbours along the line; the sample is the midpoint of the two points either side. Directions come from the
+    main axis of neighbouring intensity-edge samples within ``dir_radius`` (stripe borders are lines across the
+    scan lines); samples without one are dropped unless ``keep_undirected``."""
+    P = np.asarray(points, float)
+    I = np.asarray(intensity, float).ravel()
+    R = None if ring is None else np.asarray(ring).ravel()
+    if max_range is not None:
+        keep = np.linalg.norm(P, axis=1) < max_range
+        P, I = P[keep], I[keep]
+        R = None if R is None else R[keep]
+    empty = LidarEdges(np.zeros((0, 3)), np.zeros((0, 3)))
+    w = int(window)
+    if len(P) < 2 * w + 2:
+        return empty
+    row = _scan_rows(P, R, el_bin_deg)
+    az = np.degrees(np.arctan2(P[:, 1], P[:, 0]))
+    rng_ = np.linalg.norm(P, axis=1)
+    order = np.lexsort((az, row))
+    P_s, I_s, r_s, a_s, row_s = P[order], I[order], rng_[order], az[order], row[order]
+    # continuous runs along a scan line: same row, small azimuth gap, no depth step
+    cont = (row_s[1:] == row_s[:-1]) & (np.abs(a_s[1:] - a_s[:-1]) < max_gap_deg)
+    cont &= np.abs(r_s[1:] - r_s[:-1]) < np.maximum(max_depth_step, rel_depth_step * np.minimum(r_s[1:], r_s[:-1]))
+    seg = np.concatenate([[0], np.cumsum(~cont)])  # run id per sorted point
+    n = len(P_s)
+    cs = np.concatenate([[0.0], np.cumsum(I_s)])
+    i = np.arange(w - 1, n - w)  # gap between sorted points i and i+1
+    same = seg[i - w + 1] == seg[i + w]
+    before = (cs[i + 1] - cs[i + 1 - w]) / w
+    after = (cs[i + 1 + w] - cs[i + 1]) / w
+    step = np.where(same, after - before, 0.0)
+    lo, hi = np.minimum(before, after), np.maximum(before, after)
+    strong = same & (np.abs(step) >= min_step) & (hi >= min_ratio * np.maximum(lo, 1.0))
+    # non-maximum suppression along the line (the windowed step is spread over neighbouring gaps)
+    a = np.abs(step)
+    prev_ = np.concatenate([[0.0], a[:-1]])
+    next_ = np.concatenate([a[1:], [0.0]])
+    strong &= (a >= prev_) & (a > next_)
+    g = i[strong]
+    if len(g) < 3:
+        return empty
+    E = 0.5 * (P_s[g] + P_s[g + 1])
+    dirs = _line_dirs(E, dir_radius)
+    if not keep_undirected:
+        ok = np.all(np.isfinite(dirs), axis=1)
+        E, dirs = E[ok], dirs[ok]
+    return LidarEdges(E, dirs)
+
+
+SCAN_EDGE_KINDS = ("depth", "intensity", "depth+intensity")
+
+
+def lidar_scan_edges(points: np.ndarray, intensity: np.ndarray | None = None, ring: np.ndarray | None = None, kind: str = "intensity",
+                     max_range: float | None = 60.0) -> LidarEdges:
+    """Edges of a single spinning-LiDAR sweep by ``kind``: ``depth`` (:func:`lidar_depth_edges`), ``intensity``
+    (:func:`lidar_scan_intensity_edges`, needs ``intensity``) or ``depth+intensity`` (both, one set).
+
+    Measured on opencalib_road_64beam (docs/lidar_camera.md): against Canny edges the intensity edges score lowest
+    at (or 0.5 deg from) the shipped reference over a +-4 deg rotation grid, while the depth-discontinuity edges
+    score lower than the reference at poses 2-4 deg away (tree crowns and other clutter) and pull a refinement
+    there; prefer ``intensity`` on road scenes with lane markings."""
+    if kind not in SCAN_EDGE_KINDS:
+        raise ValueError(f"kind: expected one of {SCAN_EDGE_KINDS}, got {kind!r}")
+    parts = []
+    if "depth" in kind:
+        parts.append(lidar_depth_edges(points, max_range=max_range))
+    if "intensity" in kind:
+        if intensity is None:
+            raise ValueError("intensity edges need the cloud's intensity")
+        parts.append(lidar_scan_intensity_edges(points, intensity, ring, max_range=max_range))
+    return merge_edges(*parts)
+
+

@@ -28,17 +28,20 @@ class Cloud:
     points: np.ndarray  # (N,3) float32
     intensity: np.ndarray | None = None  # (N,) float32
     timestamp: float | None = None
+    ring: np.ndarray | None = None  # (N,) int32 scan line (beam) of a spinning multi-beam LiDAR, when the file has one
 
     def __len__(self) -> int:
         return len(self.points)
 
 
-def _finish(path: Path, xyz: np.ndarray, intensity: np.ndarray | None) -> Cloud:
+def _finish(path: Path, xyz: np.ndarray, intensity: np.ndarray | None, ring: np.ndarray | None = None) -> Cloud:
     xyz = np.asarray(xyz, dtype=np.float32)
     keep = np.all(np.isfinite(xyz), axis=1)
     if intensity is not None:
         intensity = np.asarray(intensity, dtype=np.float32)[keep]
-    return Cloud(np.ascontiguousarray(xyz[keep]), intensity)
+    if ring is not None:
+        ring = np.asarray(ring).reshape(len(xyz), -1)[:, 0].astype(np.int32)[keep]
+    return Cloud(np.ascontiguousarray(xyz[keep]), intensity, ring=ring)
 
 
 def _pcd_header(path: Path, raw: bytes) -> tuple[dict[str, list[str]], int]:
@@ -106,7 +109,7 @@ def _read_pcd(path: Path) -> Cloud:
         raise InputError(path, f"PCD DATA '{data_kind}' not supported")
     xyz = np.stack([col["x"], col["y"], col["z"]], axis=1)
     intensity = next((col[nm] for nm in _INTENSITY_NAMES if nm in col), None)
-    return _finish(path, xyz, intensity)
+    return _finish(path, xyz, intensity, col.get("ring"))
 
 
 def _lzf_decompress(src: bytes, out_len: int) -> bytes:
@@ -171,7 +174,7 @@ def _pcd_binary_compressed_open3d(path: Path, names, n: int) -> dict[str, np.nda
             return None
         col = {"x": pos[:, 0], "y": pos[:, 1], "z": pos[:, 2]}
         for nm in names:
-            if nm in _INTENSITY_NAMES:
+            if nm in _INTENSITY_NAMES or nm == "ring":
                 if nm not in pc.point:
                     return None
                 col[nm] = pc.point[nm].numpy().reshape(n, -1)[:, 0]
