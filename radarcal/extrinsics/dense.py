@@ -55,41 +55,59 @@ class DenseScene:
     points: np.ndarray  # (N,3) cloud, LiDAR frame (m)
     energy: ImageEnergy
     creases: object = None  # optional LidarEdges (plane intersections), LiDAR frame
+    origin: np.ndarray = field(default_factory=lambda: np.zeros(3))  # the LiDAR's position in the points' frame (m)
 
 
 @dataclass
 class DenseOptions:
-    sigmas_px: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)
+    sigmas_px: tuple[float, ...] = (8.0, 4.0, 2.0, 1.0)  # image-energy blur per stage, coarse to fine
     coarse_search_deg: float = 4.0  # half-width of the rotation grid at the coarsest sigma (0: none)
     coarse_step_deg: float = 1.0
-    edge_radius_px: float = 6.0
-    min_jump_m: float = 0.5
+    min_jump_m: float = 0.5  # depth edge: neighbour behind by more than max(min_jump_m, rel_jump * depth)
     rel_jump: float = 0.1
     max_range_m: float = 80.0
     max_edge_points: int = 20000  # per scene (random subset, fixed seed)
     fix_translation: bool = False
-    rot_scale_deg: float = 0.5  # optimiser step scales
+    rot_scale_deg: float = 0.5  # optimiser parameter scales
     trans_scale_m: float = 0.05
     max_eval: int = 600  # per stage
-    rerender: bool = True  # re-extract the view-dependent depth edges at every stage
+    stability_checks: int = 3  # restarts from the result moved by stability_deg / stability_m (0: none)
+    stability_deg: float = 1.0
+    stability_m: float = 0.05
+    stability_sigmas_px: tuple[float, ...] = (4.0, 2.0, 1.0)
+    stability_tol_deg: float = 0.1  # restarts must come back this close for "converged"
+    stability_tol_m: float = 0.02
+    adopt_margin: float = 0.005  # relative score gain that makes a restart the new result
+    min_edge_points: int = 500
+    max_translation_m: float = 0.3  # the translation stays within this distance of the initial guess
+    edge_viewpoint: str = "lidar"  # "lidar": depth edges as the LiDAR saw them (independent of the translation being
+    # solved - a view from a wrongly placed camera makes its own, self-consistent edges); "camera": from the estimate
+    fit_edge_offset: bool = False  # also fit a LiDAR edge-position bias (bx, by) px along the edge normals
+    valley_step_m: float = 0.0  # translation grid along the shift/rotation valleys and the optical axis (0: none)
+    valley_range_m: float = 0.15
 
 
 @dataclass
 class DenseResult:
     T_cam_lidar: np.ndarray
     T_init: np.ndarray
-    score_init: float  # dense score at the finest sigma (higher = better aligned)
+    converged: bool
+    message: str
+    score_init: float  # dense score at the finest sigma, edges extracted at the result (higher = better aligned)
     score: float
     n_edge_points: int
+    spread_deg: float  # largest distance of a restart's end point from the result (rotation, deg / translation, m)
+    spread_m: float
     history: list = field(default_factory=list)
+    edge_offset_px: tuple = (0.0, 0.0)  # fitted LiDAR edge-position bias (bx, by), with fit_edge_offset
 
 
-def view_depth_edges(camera: Camera, T_cam_lidar: np.ndarray, points: np.ndarray, cell_px: int = 2, radius_cells: int = 2, min_jump_m: float = 0.5,
-                     rel_jump: float = 0.1, max_range_m: float = 80.0, hole_cells: int = 1, coverage_cells: int = 15, helper_px: float = 3.0,
+def view_depth_edges(camera: Camera, T_cam_lidar: np.ndarray, points: np.ndarray, cell_px: int = 2, radius_cells: int = 1, min_jump_m: float = 0.5,
+                     rel_jump: float = 0.1, max_range_m: float = 80.0, hole_cells: int = 3, coverage_cells: int = 15, helper_px: float = 3.0,
                      empty_is_far: bool = True) -> DenseEdgePoints:
     """Occlusion-aware depth-discontinuity edge points of ``points`` (LiDAR frame) as seen by ``camera`` at
-    ``T_cam_lidar``. The points are z-buffered into ``cell_px`` cells (holes up to ``hole_cells`` filled from their
-    nearest neighbours); a cell is an edge when a cell within ``radius_cells`` lies clearly behind it, or (with
+    ``T_cam_lidar``. The points are z-buffered into ``cell_px`` cells (sampling gaps up to ``2 * hole_cells + 1`` cells wide closed
+    with the nearest depth around them); a cell is an edge when a cell within ``radius_cells`` lies clearly behind it, or (with
     ``empty_is_far``) is empty while inside the covered area (no return: glass, sky, beyond range). The visible
     points of edge cells are the edge points; the image normal points towards the far side."""
     P = np.asarray(points, float)
@@ -109,9 +127,12 @@ def view_depth_edges(camera: Camera, T_cam_lidar: np.ndarray, points: np.ndarray
     np.minimum.at(zb, cell, z.astype(np.float32))
     zb = zb.reshape(ch, cw)
     have = zb < BIG
+    # sampling gaps (narrower than 2 * hole_cells + 1 cells) are closed and take the nearest depth of the window;
+    # larger empty regions stay empty (no return: glass, sky, beyond range)
     k = 2 * hole_cells + 1
-    zf = np.where(have, zb, cv2.erode(zb, np.ones((k, k), np.uint8)))
-    filled = zf < BIG
+    ker = np.ones((k, k), np.uint8)
+    filled = cv2.morphologyEx(have.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool) | have
+    zf = np.where(have, zb, np.where(filled, cv2.erode(zb, ker), BIG))
     kc = 2 * (coverage_cells // 2) + 1
     cover = cv2.morphologyEx(filled.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((kc, kc), np.uint8)).astype(bool)
     cover = cv2.erode(cover.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
@@ -196,8 +217,10 @@ def _bilinear(maps: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return (maps[:, y0, x0] * (1 - fx) * (1 - fy) + maps[:, y0, x0 + 1] * fx * (1 - fy) + maps[:, y0 + 1, x0] * (1 - fx) * fy + maps[:, y0 + 1, x0 + 1] * fx * fy)
 
 
-def dense_score(camera: Camera, T_cam_lidar: np.ndarray, edges: DenseEdgePoints, energy: ImageEnergy, sigma: float) -> float:
-    """Weighted mean of ``sqrt(n^T J_sigma n)`` over the edge points (0 for points leaving the image)."""
+def dense_score(camera: Camera, T_cam_lidar: np.ndarray, edges: DenseEdgePoints, energy: ImageEnergy, sigma: float, offset_px: tuple[float, float] = (0.0, 0.0)) -> float:
+    """Weighted mean of ``sqrt(n^T J_sigma n)`` over the edge points (0 for points leaving the image).
+    ``offset_px`` = (bx, by): depth-edge points are moved by (bx n_x, by n_y) px along their normal (towards the far
+    side for positive values) - a LiDAR edge-position bias (beam divergence, edge band) fitted with the pose."""
     if len(edges.points) == 0:
         return 0.0
     uv, valid, _ = camera.project_from(T_cam_lidar, edges.points)
@@ -205,7 +228,11 @@ def dense_score(camera: Camera, T_cam_lidar: np.ndarray, edges: DenseEdgePoints,
     ins = valid & validh & camera.in_image(uv, 1.0)
     n = uvh[ins] - uv[ins]
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-9)
-    J = _bilinear(energy.J[sigma], uv[ins])
+    uv = uv[ins]
+    if offset_px[0] or offset_px[1]:
+        dep = (edges.kind[ins] == 0)[:, None]
+        uv = uv + dep * n * np.asarray(offset_px, float)
+    J = _bilinear(energy.J[sigma], uv)
     e = J[0] * n[:, 0] ** 2 + 2 * J[1] * n[:, 0] * n[:, 1] + J[2] * n[:, 1] ** 2
     return float(np.sum(edges.weights[ins] * np.sqrt(np.maximum(e, 0))) / max(edges.weights.sum(), 1e-9))
 
@@ -215,7 +242,11 @@ def _apply(x: np.ndarray, T: np.ndarray) -> np.ndarray:
 
 
 def _scene_edges(sc: DenseScene, T: np.ndarray, o: DenseOptions, rng) -> DenseEdgePoints:
-    e = view_depth_edges(sc.camera, T, sc.points, min_jump_m=o.min_jump_m, rel_jump=o.rel_jump, max_range_m=o.max_range_m)
+    Tv = np.asarray(T, float)
+    if o.edge_viewpoint == "lidar":  # virtual camera at the LiDAR origin with the camera's orientation
+        Tv = Tv.copy()
+        Tv[:3, 3] = -Tv[:3, :3] @ np.asarray(sc.origin, float)
+    e = view_depth_edges(sc.camera, Tv, sc.points, min_jump_m=o.min_jump_m, rel_jump=o.rel_jump, max_range_m=o.max_range_m)
     if sc.creases is not None and len(sc.creases.points):
         c = _crease_points(sc.camera, T, sc.creases)
         e = DenseEdgePoints(np.concatenate([e.points, c.points]), np.concatenate([e.helpers, c.helpers]), np.concatenate([e.weights, c.weights]),
@@ -226,24 +257,61 @@ def _scene_edges(sc: DenseScene, T: np.ndarray, o: DenseOptions, rng) -> DenseEd
     return e
 
 
-def _total(scenes, edges, T, sigma) -> float:
-    return float(np.mean([dense_score(sc.camera, T, e, sc.energy, sigma) for sc, e in zip(scenes, edges)]))
+def _total(scenes, edges, T, sigma, offset_px=(0.0, 0.0)) -> float:
+    return float(np.mean([dense_score(sc.camera, T, e, sc.energy, sigma, offset_px) for sc, e in zip(scenes, edges)]))
+
+
+def _stages(scenes, T, o: DenseOptions, sigmas, rng, hist, T_init, offset):
+    import nlopt
+
+    n_pose = 3 if o.fix_translation else 6
+    n_par = n_pose + (2 if o.fit_edge_offset else 0)
+    scale = np.r_[[np.radians(o.rot_scale_deg)] * 3, [o.trans_scale_m] * 3][:n_pose]
+    scale = np.r_[scale, [1.0] * (n_par - n_pose)]
+    t_init = T_init[:3, 3]
+    for sigma in sigmas:
+        edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
+        Tc = T.copy()
+
+        def unpack(y, Tc=Tc):
+            x = np.zeros(6)
+            x[:n_pose] = y[:n_pose] * scale[:n_pose]
+            off = tuple(y[n_pose:]) if n_par > n_pose else (0.0, 0.0)
+            return _apply(x, Tc), off
+
+        def f(y, grad, edges=edges, sigma=sigma):
+            Tx, off = unpack(y)
+            pen = max(np.linalg.norm(Tx[:3, 3] - t_init) - o.max_translation_m, 0.0) * 10.0  # stay within the bound
+            return -_total(scenes, edges, Tx, sigma, off) + pen
+
+        opt = nlopt.opt(nlopt.LN_BOBYQA, n_par)
+        opt.set_min_objective(f)
+        opt.set_lower_bounds(-np.full(n_par, 8.0))
+        opt.set_upper_bounds(np.full(n_par, 8.0))
+        opt.set_initial_step(np.full(n_par, 0.5 if sigma >= 4 else 0.25))
+        opt.set_xtol_abs(np.full(n_par, 0.01))
+        opt.set_maxeval(o.max_eval)
+        y = opt.optimize(np.zeros(n_par) if n_par == n_pose else np.r_[np.zeros(n_pose), offset[0]])
+        T, off = unpack(y)
+        offset[0] = np.asarray(off, float)
+        hist.append({"stage": f"sigma={sigma:g}", "score": -opt.last_optimum_value(), "evals": opt.get_numevals(), "edge_offset_px": list(map(float, off))})
+    return T
 
 
 def refine_dense(scenes: list[DenseScene], T_init: np.ndarray, options: DenseOptions | None = None) -> DenseResult:
-    """Maximise the mean dense edge score over the scenes (one shared ``T_cam_lidar``): an optional rotation grid at
-    the coarsest sigma, then a derivative-free local search (nlopt BOBYQA) per sigma, coarse to fine, the
-    view-dependent edges re-extracted at the current estimate before each stage."""
-    import nlopt
-
+    """Maximise the mean dense edge score over the scenes (one shared ``T_cam_lidar``): a rotation grid at the
+    coarsest sigma, then a derivative-free local search (nlopt BOBYQA; rotation vector + translation applied on the
+    left) per sigma, coarse to fine, with the view-dependent edges re-extracted at the current estimate before each
+    stage. Verdict: ``stability_checks`` restarts from the result moved by ``stability_deg`` / ``stability_m`` must
+    come back within ``stability_tol_deg`` / ``stability_tol_m``; a restart that ends with a clearly higher score
+    (same edges) is adopted and the check repeated. Never raises on poor data."""
     o = options or DenseOptions()
     T0 = np.asarray(T_init, float)
     rng = np.random.default_rng(0)
-    hist = []
+    hist: list = []
     T = T0.copy()
-    edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
-    s_fine_init = _total(scenes, edges, T0, o.sigmas_px[-1])
     if o.coarse_search_deg > 0:
+        edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
         sub = []
         for e in edges:
             k = rng.choice(len(e.points), min(len(e.points), 3000), replace=False)
@@ -254,29 +322,63 @@ def refine_dense(scenes: list[DenseScene], T_init: np.ndarray, options: DenseOpt
         best = offs[int(np.argmax(vals))]
         T = _apply(np.r_[best, 0, 0, 0], T)
         hist.append({"stage": "grid", "score": float(vals.max()), "offset_deg": np.degrees(best).tolist()})
-    n_par = 3 if o.fix_translation else 6
-    scale = np.r_[[np.radians(o.rot_scale_deg)] * 3, [o.trans_scale_m] * 3][:n_par]
-    for sigma in o.sigmas_px:
-        if o.rerender:
+    offset = [np.zeros(2)]
+    T = _stages(scenes, T, o, o.sigmas_px[:1], rng, hist, T0, offset)
+    # translation grid along the two valleys of edge alignment (a sideways / vertical camera shift compensated by the
+    # yaw / pitch that keeps the median edge depth in place) and along the optical axis, scored at the second sigma
+    if o.valley_step_m > 0 and not o.fix_translation:
+        edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
+        sub = []
+        for e in edges:
+            k = rng.choice(len(e.points), min(len(e.points), 4000), replace=False)
+            sub.append(DenseEdgePoints(e.points[k], e.helpers[k], e.weights[k], e.kind[k]))
+        z = np.concatenate([(e.points @ T[:3, :3].T + T[:3, 3])[:, 2] for e in edges])
+        Z = float(np.median(z)) if len(z) else 10.0
+        V = np.array([[0.0, -1.0 / Z, 0.0, 1.0, 0.0, 0.0], [1.0 / Z, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
+        g = np.arange(-o.valley_range_m, o.valley_range_m + 1e-9, o.valley_step_m)
+        abc = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T
+        sig = o.sigmas_px[min(1, len(o.sigmas_px) - 1)]
+        vals = np.array([_total(scenes, sub, _apply(c @ V, T), sig) for c in abc])
+        best = abc[int(np.argmax(vals))]
+        hist.append({"stage": "valley-grid", "score": float(vals.max()), "offset_m": best.tolist(), "median_depth_m": Z})
+        T = _apply(best @ V, T)
+        T = _stages(scenes, T, o, o.sigmas_px[1:], rng, hist, T0, offset)
+    else:
+        T = _stages(scenes, T, o, o.sigmas_px[1:], rng, hist, T0, offset)
+    spread = (0.0, 0.0)
+    if o.stability_checks > 0:
+        srng = np.random.default_rng(12345)
+        for rnd in range(3):
             edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
-        Tc = T.copy()
-
-        def f(y, grad):
-            x = np.zeros(6)
-            x[:n_par] = y * scale
-            return -_total(scenes, edges, _apply(x, Tc), sigma)
-
-        opt = nlopt.opt(nlopt.LN_BOBYQA, n_par)
-        opt.set_min_objective(f)
-        opt.set_lower_bounds(-np.full(n_par, 8.0))
-        opt.set_upper_bounds(np.full(n_par, 8.0))
-        opt.set_initial_step(np.full(n_par, 0.5 if sigma >= 4 else 0.25))
-        opt.set_xtol_abs(np.full(n_par, 0.01))
-        opt.set_maxeval(o.max_eval)
-        y = opt.optimize(np.zeros(n_par))
-        x = np.zeros(6)
-        x[:n_par] = y * scale
-        T = _apply(x, Tc)
-        hist.append({"stage": f"sigma={sigma:g}", "score": -opt.last_optimum_value(), "evals": opt.get_numevals(), "step": x.tolist()})
+            s_T = _total(scenes, edges, T, o.sigmas_px[-1], tuple(offset[0]))
+            ends = []
+            for _ in range(o.stability_checks):
+                Tk = geometry.perturb_T(T, o.stability_deg, 0.0 if o.fix_translation else o.stability_m, srng)
+                ends.append(_stages(scenes, Tk, o, o.stability_sigmas_px, rng, hist, T0, [offset[0].copy()]))
+            sk = [_total(scenes, edges, Te, o.sigmas_px[-1], tuple(offset[0])) for Te in ends]
+            dev = [geometry.pose_error(Te, T) for Te in ends]
+            hist.append({"stage": "stability", "round": rnd, "score_result": s_T, "scores": sk, "dev": dev})
+            k = int(np.argmax(sk))
+            if sk[k] > s_T * (1 + o.adopt_margin):
+                T = ends[k]
+                continue
+            spread = (max(d[0] for d in dev), max(d[1] for d in dev))
+            break
+        else:
+            spread = (float("inf"), float("inf"))
     edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
-    return DenseResult(T, T0, s_fine_init, _total(scenes, edges, T, o.sigmas_px[-1]), int(sum(len(e.points) for e in edges)), hist)
+    s_init, s_end = _total(scenes, edges, T0, o.sigmas_px[-1]), _total(scenes, edges, T, o.sigmas_px[-1], tuple(offset[0]))
+    n_pts = int(sum(len(e.points) for e in edges))
+    moved = geometry.pose_error(T, T0)
+    if n_pts < o.min_edge_points:
+        ok, msg = False, f"did not converge: only {n_pts} LiDAR edge points in view (< {o.min_edge_points})"
+    elif not np.isfinite(spread[0]):
+        ok, msg = False, "did not converge: restarts from the result kept finding higher scores"
+    elif spread[0] > o.stability_tol_deg or spread[1] > o.stability_tol_m:
+        ok, msg = False, (f"did not converge: restarts {o.stability_deg:g} deg / {o.stability_m * 100:g} cm away end up to {spread[0]:.3f} deg / "
+                          f"{spread[1] * 100:.1f} cm from the result (tolerance {o.stability_tol_deg:g} deg / {o.stability_tol_m * 100:g} cm) - the optimum is not pinned down that well")
+    elif s_end < s_init:
+        ok, msg = False, f"did not converge: the dense score got worse ({s_init:.4f} -> {s_end:.4f})"
+    else:
+        ok, msg = True, f"converged: dense score {s_init:.4f} -> {s_end:.4f}, moved {moved[0]:.3f} deg / {moved[1] * 100:.1f} cm, restarts within {spread[0]:.3f} deg / {spread[1] * 100:.1f} cm"
+    return DenseResult(T, T0, bool(ok), msg, s_init, s_end, n_pts, float(spread[0]), float(spread[1]), hist, tuple(map(float, offset[0])))
