@@ -245,7 +245,8 @@ def real_mlcc_dense(seeds=(0, 1, 2)) -> dict:
         print("\n-- mlcc dense: data set absent, skipped --")
         return {}
     print("\n-- mlcc dense edge correlation (6 pairs jointly per camera via the LiDAR chain), from the reference perturbed 3 deg / 10 cm --")
-    print(f"{'camera':>6} {'seed':>4} {'deg':>6} {'cm':>5} {'d rot about cam x,y,z (deg)':>28} {'d t (cm)':>18} {'edge score ref/ours px':>22} {'restart spread':>15} {'verdict':>14} {'s':>4} goal")
+    print(f"{'camera':>6} {'seed':>4} {'deg':>6} {'cm':>5} {'d rot about cam x,y,z (deg)':>28} {'d t (cm)':>18} {'edge score ref/ours px':>22} {'restart spread':>15} "
+          f"{'score drop % at 5 cm x/y/z':>26} {'verdict':>14} {'s':>4} goal")
     out = {}
     for cam_name, pairs in (("left", (0, 2, 4, 6, 8, 10)), ("right", (1, 3, 5, 7, 9, 11))):
         T_ref, scenes, yard = _mlcc_dense_scenes(pairs)
@@ -264,7 +265,10 @@ def real_mlcc_dense(seeds=(0, 1, 2)) -> dict:
             out[(cam_name, seed)] = (r.T_cam_lidar, T_ref, e, ours, s_ref, r.converged)
             print(f"{cam_name:>6} {seed:>4} {e[0]:6.3f} {e[1] * 100:5.1f} {np.array2string(np.degrees(d[:3]), precision=3, sign='+'):>28} "
                   f"{np.array2string((r.T_cam_lidar[:3, 3] - T_ref[:3, 3]) * 100, precision=1, sign='+'):>18} {s_ref:10.2f} / {ours:5.2f}      "
-                  f"{r.spread_deg:5.2f} deg {r.spread_m * 100:4.1f} cm {'converged' if r.converged else 'NOT converged':>14} {time.perf_counter() - t0:4.0f} {'met' if goal else 'not met'}")
+                  f"{r.spread_deg:5.2f} deg {r.spread_m * 100:4.1f} cm {' / '.join(f'{100 * v:.2f}' for v in r.translation_drops.values()):>26} "
+                  f"{'converged' if r.converged else 'NOT converged':>14} {time.perf_counter() - t0:4.0f} {'met' if goal else 'not met'}")
+            if not r.converged:
+                print(f"         {r.message}")
     for seed in seeds:
         if ("left", seed) in out and ("right", seed) in out:
             (TL, TLr, *_), (TR, TRr, *_) = out[("left", seed)], out[("right", seed)]

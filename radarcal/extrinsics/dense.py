@@ -3,13 +3,15 @@
 Instead of sparse point-to-line matches, every LiDAR edge point scores the image's smoothed, direction-aware edge
 energy where it projects, and the mean score is maximised over the 6 parameters of ``T_cam_lidar``.
 
-LiDAR side (view dependent, occlusion aware): the cloud is projected with the current estimate, a coarse z-buffer
-(min depth per 2x2-px cell, spread to the 3x3 neighbouring cells) decides which points are visible, and a visible
-point is a *depth edge* when visible points within ``edge_radius_px`` lie clearly behind it (> max(``min_jump_m``,
-``rel_jump`` x depth)). Its edge normal (image plane) points from it towards the background. Optional
-plane-intersection (crease) samples from :func:`radarcal.extrinsics.edges.lidar_edges` join with the normal
-perpendicular to their projected direction. Every edge point carries a second 3-D point a few pixels along its
-normal so that the normal follows the transform.
+LiDAR side: depth discontinuities as the LiDAR saw them. The cloud is z-buffered into 2 px cells of a virtual
+camera at the LiDAR origin with the camera's orientation and intrinsics (sampling gaps closed); a cell is a *depth
+edge* when a cell within ``radius_cells`` lies clearly behind it (> max(``min_jump_m``, ``rel_jump`` x depth)) or
+is a large empty region inside the covered area (no return: glass, sky). Its edge normal (image plane) points
+towards the far side. Extracting from the LiDAR origin (``edge_viewpoint="lidar"``) keeps the edge set independent of
+the translation being solved; from the estimated camera position a wrong pose makes its own, self-consistent edges.
+Optional plane-intersection (crease) samples from :func:`radarcal.extrinsics.edges.lidar_edges` join with the
+normal perpendicular to their projected direction. Every edge point carries a second 3-D point a few pixels along
+its normal so that the normal follows the transform.
 
 Image side: the gradient of the grey image with its magnitude clipped at a high percentile (so a few high-contrast
 edges do not dominate), turned into the structure tensor ``g g^T`` and blurred with a Gaussian of ``sigma`` px
@@ -18,7 +20,7 @@ edges do not dominate), turned into the structure tensor ``g g^T`` and blurred w
 
 Frames and units: ``T_cam_lidar`` maps LiDAR points (m) into the camera (OpenCV axes); pixels with centres at integer
 coordinates; the parameter vector is a rotation vector (rad) and a translation (m) applied on the left (camera
-frame). All per-point / per-pixel work is vectorised (numpy / OpenCV / cKDTree).
+frame). All per-point / per-pixel work is vectorised (numpy / OpenCV).
 """
 
 from __future__ import annotations
@@ -27,7 +29,6 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.spatial import cKDTree
 
 from radarcal import geometry
 from radarcal.camera import Camera
@@ -78,13 +79,14 @@ class DenseOptions:
     stability_tol_deg: float = 0.1  # restarts must come back this close for "converged"
     stability_tol_m: float = 0.02
     adopt_margin: float = 0.005  # relative score gain that makes a restart the new result
+    ambiguity_margin: float = 0.02  # restarts ending > this much (relative) below the result are worse minima, ignored
+    observe_m: float = 0.05  # translation observability check: the score must drop by >= observe_min_drop at +-observe_m
+    observe_min_drop: float = 0.01  # along the weak directions (0 observe_m: no check)
     min_edge_points: int = 500
     max_translation_m: float = 0.3  # the translation stays within this distance of the initial guess
     edge_viewpoint: str = "lidar"  # "lidar": depth edges as the LiDAR saw them (independent of the translation being
     # solved - a view from a wrongly placed camera makes its own, self-consistent edges); "camera": from the estimate
     fit_edge_offset: bool = False  # also fit a LiDAR edge-position bias (bx, by) px along the edge normals
-    valley_step_m: float = 0.0  # translation grid along the shift/rotation valleys and the optical axis (0: none)
-    valley_range_m: float = 0.15
 
 
 @dataclass
@@ -100,6 +102,7 @@ class DenseResult:
     spread_m: float
     history: list = field(default_factory=list)
     edge_offset_px: tuple = (0.0, 0.0)  # fitted LiDAR edge-position bias (bx, by), with fit_edge_offset
+    translation_drops: dict = field(default_factory=dict)  # relative score drop at +-observe_m along the weak directions
 
 
 def view_depth_edges(camera: Camera, T_cam_lidar: np.ndarray, points: np.ndarray, cell_px: int = 2, radius_cells: int = 1, min_jump_m: float = 0.5,
@@ -301,10 +304,13 @@ def _stages(scenes, T, o: DenseOptions, sigmas, rng, hist, T_init, offset):
 def refine_dense(scenes: list[DenseScene], T_init: np.ndarray, options: DenseOptions | None = None) -> DenseResult:
     """Maximise the mean dense edge score over the scenes (one shared ``T_cam_lidar``): a rotation grid at the
     coarsest sigma, then a derivative-free local search (nlopt BOBYQA; rotation vector + translation applied on the
-    left) per sigma, coarse to fine, with the view-dependent edges re-extracted at the current estimate before each
-    stage. Verdict: ``stability_checks`` restarts from the result moved by ``stability_deg`` / ``stability_m`` must
-    come back within ``stability_tol_deg`` / ``stability_tol_m``; a restart that ends with a clearly higher score
-    (same edges) is adopted and the check repeated. Never raises on poor data."""
+    left) per sigma, coarse to fine, with the edges re-extracted at the current rotation before each stage (from the
+    LiDAR origin by default, so they do not depend on the translation being solved). Verdict: ``stability_checks`` restarts from the result moved by ``stability_deg`` / ``stability_m`` that
+    end with about the same score (within ``ambiguity_margin``) must be within ``stability_tol_deg`` /
+    ``stability_tol_m`` of it (another minimum about as good = ambiguous); restarts ending clearly lower fell into a
+    worse minimum and are ignored (at least one must come back); a clearly higher one is adopted and the check
+    repeated; then the score must drop by >= ``observe_min_drop`` at +-``observe_m`` along the three weakest
+    translation directions, else "did not converge" (translation not observed). Never raises on poor data."""
     o = options or DenseOptions()
     T0 = np.asarray(T_init, float)
     rng = np.random.default_rng(0)
@@ -323,29 +329,8 @@ def refine_dense(scenes: list[DenseScene], T_init: np.ndarray, options: DenseOpt
         T = _apply(np.r_[best, 0, 0, 0], T)
         hist.append({"stage": "grid", "score": float(vals.max()), "offset_deg": np.degrees(best).tolist()})
     offset = [np.zeros(2)]
-    T = _stages(scenes, T, o, o.sigmas_px[:1], rng, hist, T0, offset)
-    # translation grid along the two valleys of edge alignment (a sideways / vertical camera shift compensated by the
-    # yaw / pitch that keeps the median edge depth in place) and along the optical axis, scored at the second sigma
-    if o.valley_step_m > 0 and not o.fix_translation:
-        edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
-        sub = []
-        for e in edges:
-            k = rng.choice(len(e.points), min(len(e.points), 4000), replace=False)
-            sub.append(DenseEdgePoints(e.points[k], e.helpers[k], e.weights[k], e.kind[k]))
-        z = np.concatenate([(e.points @ T[:3, :3].T + T[:3, 3])[:, 2] for e in edges])
-        Z = float(np.median(z)) if len(z) else 10.0
-        V = np.array([[0.0, -1.0 / Z, 0.0, 1.0, 0.0, 0.0], [1.0 / Z, 0.0, 0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 0.0, 0.0, 1.0]])
-        g = np.arange(-o.valley_range_m, o.valley_range_m + 1e-9, o.valley_step_m)
-        abc = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T
-        sig = o.sigmas_px[min(1, len(o.sigmas_px) - 1)]
-        vals = np.array([_total(scenes, sub, _apply(c @ V, T), sig) for c in abc])
-        best = abc[int(np.argmax(vals))]
-        hist.append({"stage": "valley-grid", "score": float(vals.max()), "offset_m": best.tolist(), "median_depth_m": Z})
-        T = _apply(best @ V, T)
-        T = _stages(scenes, T, o, o.sigmas_px[1:], rng, hist, T0, offset)
-    else:
-        T = _stages(scenes, T, o, o.sigmas_px[1:], rng, hist, T0, offset)
-    spread = (0.0, 0.0)
+    T = _stages(scenes, T, o, o.sigmas_px, rng, hist, T0, offset)
+    spread, n_worse = (0.0, 0.0), 0
     if o.stability_checks > 0:
         srng = np.random.default_rng(12345)
         for rnd in range(3):
@@ -362,23 +347,46 @@ def refine_dense(scenes: list[DenseScene], T_init: np.ndarray, options: DenseOpt
             if sk[k] > s_T * (1 + o.adopt_margin):
                 T = ends[k]
                 continue
-            spread = (max(d[0] for d in dev), max(d[1] for d in dev))
+            # restarts ending in a clearly worse minimum say nothing about this one; those about as good must be it
+            near = [d for d, v in zip(dev, sk) if v >= s_T * (1 - o.ambiguity_margin)]
+            n_worse = len(dev) - len(near)
+            spread = (max(d[0] for d in near), max(d[1] for d in near)) if near else (float("nan"), float("nan"))
             break
         else:
             spread = (float("inf"), float("inf"))
     edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
     s_init, s_end = _total(scenes, edges, T0, o.sigmas_px[-1]), _total(scenes, edges, T, o.sigmas_px[-1], tuple(offset[0]))
+    # observability of the translation: relative score drop +-observe_m along the three weakest directions (sideways /
+    # vertical shift with the yaw / pitch that keeps the median edge depth in place, and the optical axis)
+    drops = {}
+    if o.observe_m > 0 and not o.fix_translation:
+        z = np.concatenate([(e.points @ T[:3, :3].T + T[:3, 3])[:, 2] for e in edges]) if edges else np.zeros(0)
+        Z = float(np.median(z[z > 0.3])) if np.any(z > 0.3) else 10.0
+        V = {"x (with yaw)": np.array([0.0, -1.0 / Z, 0.0, 1.0, 0.0, 0.0]), "y (with pitch)": np.array([1.0 / Z, 0.0, 0.0, 0.0, 1.0, 0.0]),
+             "z": np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])}
+        for name, v in V.items():
+            sc_pm = [_total(scenes, edges, _apply(sg * o.observe_m * v, T), o.sigmas_px[-2] if len(o.sigmas_px) > 1 else o.sigmas_px[-1], tuple(offset[0])) for sg in (-1.0, 1.0)]
+            s_mid = _total(scenes, edges, T, o.sigmas_px[-2] if len(o.sigmas_px) > 1 else o.sigmas_px[-1], tuple(offset[0]))
+            drops[name] = float(1.0 - max(sc_pm) / max(s_mid, 1e-12))
+        hist.append({"stage": "observability", "median_depth_m": Z, "drops": drops})
+    weak = [k for k, d in drops.items() if d < o.observe_min_drop]
     n_pts = int(sum(len(e.points) for e in edges))
     moved = geometry.pose_error(T, T0)
     if n_pts < o.min_edge_points:
         ok, msg = False, f"did not converge: only {n_pts} LiDAR edge points in view (< {o.min_edge_points})"
+    elif np.isnan(spread[0]):
+        ok, msg = False, f"did not converge: none of the {o.stability_checks} restarts {o.stability_deg:g} deg / {o.stability_m * 100:g} cm away came back (all ended in worse minima) - the basin is very narrow"
     elif not np.isfinite(spread[0]):
         ok, msg = False, "did not converge: restarts from the result kept finding higher scores"
     elif spread[0] > o.stability_tol_deg or spread[1] > o.stability_tol_m:
         ok, msg = False, (f"did not converge: restarts {o.stability_deg:g} deg / {o.stability_m * 100:g} cm away end up to {spread[0]:.3f} deg / "
                           f"{spread[1] * 100:.1f} cm from the result (tolerance {o.stability_tol_deg:g} deg / {o.stability_tol_m * 100:g} cm) - the optimum is not pinned down that well")
+    elif weak:
+        ok, msg = False, ("did not converge: the translation is not observed to " + f"{o.observe_m * 100:g} cm along " + ", ".join(weak) + " (the score drops by only "
+                          + ", ".join(f"{100 * drops[k]:.2f} %" for k in weak) + f" at +-{o.observe_m * 100:g} cm, < {100 * o.observe_min_drop:g} %) - add near structure or scenes, or measure the translation")
     elif s_end < s_init:
         ok, msg = False, f"did not converge: the dense score got worse ({s_init:.4f} -> {s_end:.4f})"
     else:
-        ok, msg = True, f"converged: dense score {s_init:.4f} -> {s_end:.4f}, moved {moved[0]:.3f} deg / {moved[1] * 100:.1f} cm, restarts within {spread[0]:.3f} deg / {spread[1] * 100:.1f} cm"
-    return DenseResult(T, T0, bool(ok), msg, s_init, s_end, n_pts, float(spread[0]), float(spread[1]), hist, tuple(map(float, offset[0])))
+        worse = f" ({n_worse} of {o.stability_checks} ended in a clearly worse minimum)" if n_worse else ""
+        ok, msg = True, f"converged: dense score {s_init:.4f} -> {s_end:.4f}, moved {moved[0]:.3f} deg / {moved[1] * 100:.1f} cm, restarts within {spread[0]:.3f} deg / {spread[1] * 100:.1f} cm{worse}"
+    return DenseResult(T, T0, bool(ok), msg, s_init, s_end, n_pts, float(spread[0]), float(spread[1]), hist, tuple(map(float, offset[0])), drops)
