@@ -44,6 +44,7 @@ def lidar_camera(
     intensity_edges: bool = typer.Option(True, "--intensity-edges/--no-intensity-edges", help="With --lidar-edges planes: also align reflectivity edges of the dense cloud (paint, markings) when it has intensity."),
     image_edges_kind: str = typer.Option("lsd", "--image-edges", help="lsd (straight segments, less clutter) or canny."),
     image_edge_min_px: int = typer.Option(40, "--image-edge-min-px", help="Shortest image edge kept (px); 20 keeps the short lane-marking dashes that --lidar-edges intensity matches."),
+    refine_method: str = typer.Option("matches", "--refine-method", help="matches (sparse edge matches, default) or dense (LiDAR depth edges scored on the blurred image gradient; cluttered real scenes with few plane-plane edges)."),
     voxel: float = typer.Option(0.5, "--voxel", help="Voxel size (m) for LiDAR plane fitting (0.3-0.5 dense Livox, 1.0 sparse spinning)."),
     search_deg: float = typer.Option(6.0, "--search-deg", help="Half-width of the coarse rotation search (deg; 0 disables)."),
     max_range: float = typer.Option(60.0, "--max-range", help="Ignore LiDAR points farther than this (m) for edges."),
@@ -141,12 +142,18 @@ def lidar_camera(
         from radarcal.extrinsics.edges import SCAN_EDGE_KINDS, crop_to_camera, image_edges, lidar_edges, lidar_intensity_edges, lidar_scan_edges, merge_edges
         from radarcal.extrinsics.refine import PARAM_NAMES, EdgeScene, RefineOptions, refine_edges
 
+        if refine_method not in ("matches", "dense"):
+            raise InputError("--refine-method", f"expected 'matches' or 'dense', got {refine_method!r}")
         if lidar_edges_kind not in ("planes", *SCAN_EDGE_KINDS):
             raise InputError("--lidar-edges", f"expected one of planes, {', '.join(SCAN_EDGE_KINDS)}; got {lidar_edges_kind!r}")
         if image_edge_min_px < 1:
             raise InputError("--image-edge-min-px", f"expected a positive length, got {image_edge_min_px}")
         if image_edges_kind not in ("lsd", "canny"):
             raise InputError("--image-edges", f"expected 'lsd' or 'canny', got {image_edges_kind!r}")
+        if refine_method == "dense":
+            converged, T = _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, arrays)
+            method.append("dense-edge-correlation")
+    if refine and refine_method == "matches":
         scenes = []
         with err_console.status("extracting edges"):
             for p, im, c in zip(clouds, imgs, clds):
@@ -224,6 +231,11 @@ def lidar_camera(
             q = s["pnp"]
             typer.echo(f"  PnP: rms {q['rms_px']:.2f} px over {len(q['residuals_px']) - len(q['flagged_rows'])} picks; flagged rows {list(map(int, q['flagged_rows']))}; "
                        f"sigma rot {np.array2string(np.asarray(q['sigma_rot_deg']), precision=3)} deg, trans {np.array2string(np.asarray(q['sigma_trans_m']) * 100, precision=2)} cm")
+        if "refine_dense" in s:
+            q = s["refine_dense"]
+            typer.echo(f"  dense: {q['message']}")
+            typer.echo(f"  dense score {q['dense_score_before']:.4f} -> {q['dense_score_after']:.4f} (higher = better); edge score {q['edge_score_before_px']:.2f} -> {q['edge_score_after_px']:.2f} px; "
+                       f"{q['edge_points']} LiDAR edge points")
         if "refine" in s:
             q = s["refine"]
             typer.echo(f"  edges: {q['message']}")
@@ -240,3 +252,31 @@ def lidar_camera(
     emit(summary, as_json, human)
     if not (converged or force):
         raise typer.Exit(1)
+
+
+def _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, arrays):
+    """``--refine-method dense``: all pairs share one T; the sparse method's edge score is reported as the common
+    yardstick (before / after)."""
+    from radarcal.extrinsics.dense import DenseOptions, DenseScene, image_energy, refine_dense
+    from radarcal.extrinsics.edges import crop_to_camera, edge_score, image_edges, lidar_edges
+
+    with err_console.status("dense refinement"):
+        scenes, yard = [], []
+        for im, c in zip(imgs, clds):
+            pts = c.points[crop_to_camera(c.points, cam, T, margin=0.3)].astype(float)
+            pts = pts[np.linalg.norm(pts, axis=1) < max_range]
+            scenes.append(DenseScene(cam, pts, image_energy(im)))
+            yard.append((lidar_edges(pts, voxel=voxel, max_range=max_range), image_edges(im, method=image_edges_kind)))
+        res = refine_dense(scenes, T, DenseOptions(coarse_search_deg=min(search_deg, 4.0), fix_translation=rotation_only, max_range_m=max_range))
+
+    def ys(Tx):
+        return float(np.mean([edge_score(cam, Tx, le, ie)[0] for le, ie in yard]))
+
+    e0, e1 = ys(T), ys(res.T_cam_lidar)
+    summary["refine_dense"] = {"converged": res.converged, "message": res.message, "dense_score_before": res.score_init, "dense_score_after": res.score,
+                               "edge_score_before_px": e0, "edge_score_after_px": e1, "edge_points": res.n_edge_points,
+                               "restart_spread_deg": res.spread_deg, "restart_spread_m": res.spread_m}
+    residual.update({"dense_score": res.score, "dense_score_before": res.score_init, "edge_score_px": e1, "edge_score_before_px": e0,
+                     "dense_restart_spread_deg": res.spread_deg, "dense_restart_spread_m": res.spread_m})
+    arrays["T_dense"] = res.T_cam_lidar
+    return res.converged, res.T_cam_lidar

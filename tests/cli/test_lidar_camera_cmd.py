@@ -85,3 +85,21 @@ def test_not_converged_exits_1_and_stores_nothing(synth_dir, tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert rc == 1 and not out["stored"] and not out["refine"]["converged"]
     assert (tmp_path / "b.yaml").read_bytes() == before
+
+
+def test_refine_method_dense_cli(synth_dir, tmp_path, capsys):
+    import shutil
+
+    shutil.copy(synth_dir / "bundle.yaml", tmp_path / "b.yaml")
+    capsys.readouterr()
+    rc = main(["lidar-camera", "-b", str(tmp_path / "b.yaml"), "--image", str(synth_dir / "image.png"), "--cloud", str(synth_dir / "cloud.pcd"),
+               "--init", str(synth_dir / "init.json"), "--refine", "--refine-method", "dense", "--force", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["stored"] and "dense-edge-correlation" in out["method"]
+    truth = np.array(json.loads((synth_dir / "truth.json").read_text())["T_cam_lidar"])
+    deg, m = geometry.pose_error(np.array(out["T_cam_lidar"]), truth)
+    assert deg < 0.3 and m < 0.03, (deg, m)
+    q = out["refine_dense"]
+    assert q["edge_score_after_px"] < q["edge_score_before_px"] and q["dense_score_after"] > q["dense_score_before"]
+    assert main(["lidar-camera", "-b", str(tmp_path / "b.yaml"), "--image", str(synth_dir / "image.png"), "--cloud", str(synth_dir / "cloud.pcd"),
+                 "--refine", "--refine-method", "nope"]) == 2
