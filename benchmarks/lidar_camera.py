@@ -147,6 +147,23 @@ def real_mlcc(pairs=(0, 2, 4, 8)) -> None:
         print(f"{k:>4} {p['cloud']:>22} {p['image']:>18} {len(le.points):6d} {s_ref:9.2f} {r.score_after:6.2f} {e[0]:10.3f} {e[1] * 100:6.1f} {'converged' if r.converged else 'NOT converged':>14}")
 
 
+def mlcc_chained_pairs(pairs, D: Path = SHARED / "mlcc_livox_mid100_scene2"):
+    """mlcc pairs of one camera as one problem: they do not share one ``T_cam_lidar`` (different heads / poses) but
+    share ``T_cam_avia``; with the data set's own LiDAR chain C_k = inv(T_ref_0) @ T_ref_k every cloud k moves into
+    pair 0's LiDAR frame and pair 0's ``T_cam_lidar`` is the one unknown (T_k = T_0 @ C_k).
+    Returns (T_ref_0, [(camera, cloud points as read (float, own frame), image, C_k)])."""
+    from radarcal.io import import_camera, read_cloud, read_image
+
+    meta = json.loads((D / "calib/pairs_T_cam_lidar.json").read_text())["pairs"]
+    T0_ref = np.array(meta[pairs[0]]["T_cam_lidar"])
+    out = []
+    for k in pairs:
+        p = meta[k]
+        cam, _ = import_camera(D / p["intrinsics"])
+        out.append((cam, read_cloud(D / p["cloud"]).points.astype(float), read_image(D / p["image"]), np.linalg.inv(T0_ref) @ np.array(p["T_cam_lidar"])))
+    return T0_ref, out
+
+
 def real_mlcc_joint(pairs=(0, 2, 4, 8), seeds=(0, 1, 2)) -> None:
     """All left-camera pairs refined jointly. They do not share one ``T_cam_lidar`` (different heads / poses), but
     they share ``T_left_avia``: with the data set's own LiDAR chain C_k = inv(T_ref_0) @ T_ref_k every cloud k is
@@ -155,22 +172,16 @@ def real_mlcc_joint(pairs=(0, 2, 4, 8), seeds=(0, 1, 2)) -> None:
     from radarcal import geometry
     from radarcal.extrinsics.edges import LidarEdges, edge_score, image_edges, lidar_edges
     from radarcal.extrinsics.refine import EdgeScene, RefineOptions, refine_edges
-    from radarcal.io import import_camera, read_cloud, read_image
 
-    D = SHARED / "mlcc_livox_mid100_scene2"
-    if not D.is_dir():
+    if not (SHARED / "mlcc_livox_mid100_scene2").is_dir():
         print("\n-- mlcc joint: data set absent, skipped --")
         return
-    meta = json.loads((D / "calib/pairs_T_cam_lidar.json").read_text())["pairs"]
-    T0_ref = np.array(meta[pairs[0]]["T_cam_lidar"])
+    T0_ref, loaded = mlcc_chained_pairs(pairs)
     scenes = []
-    for k in pairs:
-        p = meta[k]
-        cam, _ = import_camera(D / p["intrinsics"])
-        C = np.linalg.inv(T0_ref) @ np.array(p["T_cam_lidar"])
-        le = lidar_edges(read_cloud(D / p["cloud"]).points, voxel=0.5, min_points=8, max_range=60)
+    for cam, P, img, C in loaded:
+        le = lidar_edges(P, voxel=0.5, min_points=8, max_range=60)
         le = LidarEdges(le.points @ C[:3, :3].T + C[:3, 3], le.dirs @ C[:3, :3].T)
-        scenes.append(EdgeScene(cam, le, image_edges(read_image(D / p["image"]))))
+        scenes.append(EdgeScene(cam, le, image_edges(img)))
     s_ref = np.mean([edge_score(sc.camera, T0_ref, sc.lidar, sc.image)[0] for sc in scenes])
     print(f"\n-- mlcc joint refinement of pairs {list(pairs)} (one shared unknown via the LiDAR chain), from the reference perturbed 3 deg / 10 cm --")
     for seed in seeds:
@@ -297,18 +308,10 @@ def _mlcc_dense_scenes(pairs):
     common yardstick."""
     from radarcal.extrinsics.dense import DenseScene, image_energy
     from radarcal.extrinsics.edges import LidarEdges, image_edges, lidar_edges
-    from radarcal.io import import_camera, read_cloud, read_image
 
-    D = SHARED / "mlcc_livox_mid100_scene2"
-    meta = json.loads((D / "calib/pairs_T_cam_lidar.json").read_text())["pairs"]
-    T0_ref = np.array(meta[pairs[0]]["T_cam_lidar"])
+    T0_ref, loaded = mlcc_chained_pairs(pairs)
     scenes, yard = [], []
-    for k in pairs:
-        p = meta[k]
-        cam, _ = import_camera(D / p["intrinsics"])
-        C = np.linalg.inv(T0_ref) @ np.array(p["T_cam_lidar"])
-        P = read_cloud(D / p["cloud"]).points.astype(float)
-        img = read_image(D / p["image"])
+    for cam, P, img, C in loaded:
         scenes.append(DenseScene(cam, P[np.linalg.norm(P, axis=1) < 80] @ C[:3, :3].T + C[:3, 3], image_energy(img), origin=C[:3, 3]))
         le = lidar_edges(P, voxel=0.5, min_points=8, max_range=60)
         yard.append((cam, LidarEdges(le.points @ C[:3, :3].T + C[:3, 3], le.dirs @ C[:3, :3].T), image_edges(img)))

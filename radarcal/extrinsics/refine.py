@@ -67,6 +67,8 @@ class RefineOptions:
     stability_tol_m: float = 0.02  # distinct coarse-search minima refined in full (plus the initial guess itself)
     max_translation_move_m: float = 0.5  # a camera centre that moved farther from the initial guess is not trusted
     bootstrap: int = 40  # block-bootstrap resamples for sigma_bootstrap (0: none)
+    max_bootstrap_sigma_deg: float = 0.15  # a result whose bootstrap sigma exceeds these is weakly constrained
+    max_bootstrap_sigma_m: float = 0.03
     bootstrap_block_m: float = 0.5  # LiDAR edge samples in one block of this size are resampled together
 
 
@@ -395,10 +397,15 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     stable = stable and valley_settled
     # camera centre in the LiDAR frame: what a tape measure gives; a wrong minimum can drag it far away
     centre_move = float(np.linalg.norm(geometry.invert_T(T)[:3, 3] - geometry.invert_T(T0)[:3, 3]))
-    ok = centre_move <= o.max_translation_move_m and converged_stage and stable and match_fraction >= o.min_match_fraction and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
+    boot_deg, boot_m = float(np.degrees(np.max(sigma_boot[:3]))), float(np.max(sigma_boot[3:]))
+    weak = bool(np.all(np.isfinite(sigma_boot))) and (boot_deg > o.max_bootstrap_sigma_deg or boot_m > o.max_bootstrap_sigma_m)
+    ok = not weak and centre_move <= o.max_translation_move_m and converged_stage and stable and match_fraction >= o.min_match_fraction and n_match >= o.min_matches and np.isfinite(rms) and rms < 2.5 * o.loss_scale_px and score_after <= score_before + 0.05
     if centre_move > o.max_translation_move_m:
         msg = (f"did not converge: the camera centre moved {centre_move:.2f} m from the initial guess (> {o.max_translation_move_m:g} m) - "
                f"a wrong minimum; give --init with the measured lever arm or add scenes")
+    elif weak and converged_stage and stable and match_fraction >= o.min_match_fraction:
+        msg = (f"did not converge: weakly constrained - resampling the edges moves the result by {boot_deg:.2f} deg / {boot_m * 100:.1f} cm (1 sigma, "
+               f"> {o.max_bootstrap_sigma_deg:g} deg / {o.max_bootstrap_sigma_m * 100:g} cm); add scenes with near and far structure, or measure the translation (--rotation-only)")
     elif match_fraction < o.min_match_fraction:
         msg = f"did not converge: only {100 * match_fraction:.0f} % of the LiDAR edge samples in view found an image edge (< {100 * o.min_match_fraction:.0f} %) - probably a wrong minimum"
     elif converged_stage and not valley_settled:
@@ -447,12 +454,13 @@ def block_bootstrap_sigma(scenes, matches, T, o: RefineOptions) -> np.ndarray:
     if nb < 4:
         return np.full(6, np.nan)
     rng = np.random.default_rng(2024)
+    n_par = 3 if o.fix_translation else 6
     xs = []
     for _ in range(o.bootstrap):
         w = np.sqrt(np.bincount(rng.integers(0, nb, nb), minlength=nb).astype(float))[bid]
-        res = least_squares(lambda x: w * _residual_fn(x, T, scenes, matches, False), np.zeros(6), loss="cauchy", f_scale=o.loss_scale_px,
-                            x_scale=np.array([1e-3] * 3 + [1e-2] * 3), max_nfev=30)
-        xs.append(res.x)
+        res = least_squares(lambda x: w * _residual_fn(x, T, scenes, matches, o.fix_translation), np.zeros(n_par), loss="cauchy", f_scale=o.loss_scale_px,
+                            x_scale=np.array([1e-3] * 3 + [1e-2] * 3)[:n_par], max_nfev=30)
+        xs.append(np.concatenate([res.x, np.zeros(6 - n_par)]))
     return np.std(np.asarray(xs), axis=0, ddof=1)
 
 

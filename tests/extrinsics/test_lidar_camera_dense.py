@@ -49,18 +49,10 @@ def test_dense_refine_from_3deg_10cm(synth4):
 
 
 def _mlcc(D, pairs):
-    from radarcal.io import import_camera, read_cloud, read_image
+    from benchmarks.lidar_camera import mlcc_chained_pairs
 
-    meta = json.loads((D / "calib/pairs_T_cam_lidar.json").read_text())["pairs"]
-    T0 = np.array(meta[pairs[0]]["T_cam_lidar"])
-    scenes = []
-    for k in pairs:
-        p = meta[k]
-        cam, _ = import_camera(D / p["intrinsics"])
-        C = np.linalg.inv(T0) @ np.array(p["T_cam_lidar"])  # the data set's LiDAR chain: one shared unknown per camera
-        P = read_cloud(D / p["cloud"]).points.astype(float)
-        scenes.append(DenseScene(cam, P[np.linalg.norm(P, axis=1) < 80] @ C[:3, :3].T + C[:3, 3], image_energy(read_image(D / p["image"])), origin=C[:3, 3]))
-    return T0, scenes
+    T0, loaded = mlcc_chained_pairs(pairs, D)
+    return T0, [DenseScene(cam, P[np.linalg.norm(P, axis=1) < 80] @ C[:3, :3].T + C[:3, 3], image_energy(img), origin=C[:3, 3]) for cam, P, img, C in loaded]
 
 
 @pytest.mark.slow

@@ -72,6 +72,14 @@ def test_implausible_centre_move_is_not_converged(scene4):
     assert not r.converged and "camera centre moved" in r.message
 
 
+def test_weakly_constrained_is_not_converged(scene4):
+    # a bootstrap limit below what any real scene reaches: the verdict must refuse, naming the reason
+    s, sc = scene4
+    r = refine_edges([sc], s.T_init, RefineOptions(max_bootstrap_sigma_m=1e-5, coarse_search_deg=0, stability_checks=0))
+    assert not r.converged and "weakly constrained" in r.message, r.message
+    assert r.sigma_bootstrap[3:].max() > 1e-5
+
+
 def test_far_off_start_is_reported(scene4):
     s, sc = scene4
     T0 = geometry.perturb_T(s.T_cam_lidar, 15.0, 0.5, np.random.default_rng(3))
