@@ -81,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
     previous, common._current_argv = common._current_argv, args
     try:
         # without standalone mode click *returns* the code of a typer.Exit instead of raising it
-        return int(app(args=args, prog_name="radarcal", standalone_mode=False) or 0)
+        rc = app(args=args, prog_name="radarcal", standalone_mode=False)
+        return rc if isinstance(rc, int) else 0  # a command's own return value is not an exit code
     except InputError as e:
         if debug:
             raise
