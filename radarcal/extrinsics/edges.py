@@ -9,9 +9,10 @@ line are kept only where real points exist on both planes next to the line. This
 RANSAC loop.
 
 Reflectivity: where the LiDAR intensity jumps between neighbouring points on one surface (paint, lane markings,
-posters) the midpoint of the straddling pair is an edge sample; samples are averaged in 2 cm cells and moved onto
-their local line. These are the image edges that have no depth edge, i.e. the distractors of a purely geometric
-method, turned into features.
+posters) the midpoint of the straddling pair is an edge sample - in a dense cloud between nearest neighbours
+(``lidar_intensity_edges``: samples averaged in 2 cm cells and moved onto their local line), in a single spinning
+sweep along each scan line (``lidar_scan_intensity_edges``). These are the image edges that have no depth edge,
+i.e. the distractors of a purely geometric method, turned into features.
 
 Image: Canny edges, connected edge chains shorter than ``min_length`` px removed (connected components, no loop),
 an edge direction per pixel from the Sobel gradient, and a distance transform for scoring.

@@ -439,7 +439,7 @@ def block_bootstrap_sigma(scenes, matches, T, o: RefineOptions) -> np.ndarray:
     which the matched LiDAR edge samples are resampled with replacement in spatial blocks of
     ``o.bootstrap_block_m`` (whole stretches of an edge at once), matches held fixed. Unlike the Jacobian sigma it
     keeps the correlation of the samples along one edge and the spread of per-edge biases; on generated scenes
-    it is 2-10x the Jacobian figure (docs/lidar_camera.md), still not the whole error (biases shared by every
+    it is 1.1-3.6x the Jacobian figure (docs/lidar_camera.md), still not the whole error (biases shared by every
     edge, a wrong minimum)."""
     blocks = []
     for k, (sc, (idx, _, _, _)) in enumerate(zip(scenes, matches)):
