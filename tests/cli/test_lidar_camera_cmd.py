@@ -25,6 +25,7 @@ def test_refine_cli_stores_transform_and_session(synth_dir, capsys):
                "--init", str(synth_dir / "init.json"), "--refine", "--overlay", str(ov), "--json"])
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and out["stored"] and ov.is_file()
+    assert out["intensity_edge_samples"][0] > 100  # the generated cloud has reflectivity: paint edges join the plane edges
     truth = json.loads((synth_dir / "truth.json").read_text())
     from radarcal.bundle import load_bundle, load_session
 
