@@ -357,9 +357,10 @@ def test_missing_and_unreadable_files(tmp_path):
 def test_json_bundle_loads(tmp_path):
     import json
 
+    b = _bundle()  # one bundle: provenance times are stamped at creation, two calls can straddle a second
     p = tmp_path / "rig.json"
-    p.write_text(json.dumps(yaml.safe_load(_bundle().dumps())))
-    assert load_bundle(p).to_dict() == _bundle().to_dict()
+    p.write_text(json.dumps(yaml.safe_load(b.dumps())))
+    assert load_bundle(p).to_dict() == b.to_dict()
 
 
 # --- migration ---------------------------------------------------------------------------------------------------
