@@ -39,7 +39,7 @@ import yaml
 
 from radarcal import geometry
 from radarcal.camera import Camera
-from radarcal.errors import InputError
+from radarcal.errors import InputError, read_text
 from radarcal.plain import to_plain as _plain
 
 __all__ = [
@@ -389,12 +389,7 @@ def migrate(data: dict, path: Any = None) -> dict:
 def load_bundle(path: str | os.PathLike) -> Bundle:
     """Read, migrate and validate a bundle. Raises :class:`InputError` naming the file and the field."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(path, "bundle not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, f"cannot read bundle ({e.__class__.__name__})") from None
+    text = read_text(path, "bundle")
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as e:

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-__all__ = ["InputError"]
+import os
+from pathlib import Path
+
+__all__ = ["InputError", "read_text"]
 
 
 class InputError(Exception):
@@ -15,3 +18,14 @@ class InputError(Exception):
         self.source = str(source) if source is not None else ""
         self.message = message
         super().__init__(f"{self.source}: {message}" if self.source else message)
+
+
+def read_text(path: str | os.PathLike, what: str = "file", encoding: str = "utf-8", errors: str = "strict") -> str:
+    """The text of ``path``, or :class:`InputError` naming it: ``<what> not found`` / ``cannot read <what> as text``."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding=encoding, errors=errors)
+    except FileNotFoundError:
+        raise InputError(path, f"{what} not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(path, f"cannot read {what} as text ({e.__class__.__name__})") from None

@@ -218,7 +218,6 @@ def detect_boards_in_cloud(points: np.ndarray, board_size_m: tuple[float, float]
     thr = max(3 * noise_m, 0.03)
     keep = idx_all
     w, h = board_size_m
-    board_area = w * h
     # 1. remove the ground (large, nearly horizontal planes) so that boards on stands become separate components
     for _ in range(remove_planes):
         if len(keep) < 1000:

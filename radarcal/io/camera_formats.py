@@ -11,7 +11,7 @@ import numpy as np
 import yaml
 
 from radarcal.camera import Camera
-from radarcal.errors import InputError
+from radarcal.errors import InputError, read_text
 
 __all__ = ["import_camera", "export_camera", "detect_camera_format", "EXPORT_FORMATS"]
 
@@ -153,12 +153,7 @@ def import_camera(path: str | os.PathLike, name: str | None = None, image_size: 
 
 
 def _import_any(path: Path, name: str | None, image_size: tuple[int, int] | None) -> tuple[Camera, str]:
-    try:
-        text = path.read_text(errors="replace")
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except OSError as e:
-        raise InputError(path, f"cannot read ({e.__class__.__name__})") from None
+    text = read_text(path, errors="replace")
     fmt = detect_camera_format(text)
     if fmt == "opencv":
         return _import_opencv(path, text, name, image_size), fmt

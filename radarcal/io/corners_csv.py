@@ -8,18 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from radarcal.errors import InputError
+from radarcal.errors import InputError, read_text
 
 __all__ = ["read_corners_csv", "read_uv_csv"]
 
 
 def _rows(path: Path, min_cols: int) -> list[list[float]]:
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except (OSError, UnicodeDecodeError):
-        raise InputError(path, "cannot read file as text") from None
+    text = read_text(path)
     rows = []
     for lineno, line in enumerate(text.splitlines(), 1):
         line = line.split("#", 1)[0].strip()

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from radarcal import geometry
-from radarcal.errors import InputError
+from radarcal.errors import InputError, read_text
 
 __all__ = ["read_transform", "parse_transform_text"]
 
@@ -57,10 +57,4 @@ def parse_transform_text(text: str, source: object = "") -> np.ndarray:
 
 def read_transform(path: str | os.PathLike) -> np.ndarray:
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except (OSError, UnicodeDecodeError):
-        raise InputError(path, "cannot read file as text") from None
-    return parse_transform_text(text, path)
+    return parse_transform_text(read_text(path), path)

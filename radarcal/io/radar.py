@@ -30,7 +30,7 @@ import numpy as np
 import yaml
 
 from radarcal import geometry
-from radarcal.errors import InputError
+from radarcal.errors import InputError, read_text
 
 __all__ = [
     "RadarDetections",
@@ -63,15 +63,6 @@ class RadarDetections:
         return sorted(set(self.radar.tolist()))
 
 
-def _read_text(path: Path) -> str:
-    try:
-        return path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(path, f"cannot read ({e.__class__.__name__})") from None
-
-
 def _num(tok: str, path, line: int, what: str) -> float:
     try:
         v = float(tok)
@@ -85,7 +76,7 @@ def _num(tok: str, path, line: int, what: str) -> float:
 def read_radar_csv(path: str | os.PathLike) -> RadarDetections:
     """Read a session ``radar.csv`` (``radar,x,y[,rcs,velocity]``)."""
     path = Path(path)
-    text = _read_text(path)
+    text = read_text(path, encoding="utf-8-sig")
     names, xy, rcs, vel = [], [], [], []
     for ln, row in enumerate(csv.reader(_io.StringIO(text)), start=1):
         if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
@@ -135,7 +126,7 @@ def is_ars408_csv(path: str | os.PathLike) -> bool:
 def read_ars408_csv(path: str | os.PathLike) -> Ars408Objects:
     """Read an ARS408-style object list CSV; repairs the published header's missing comma (see module doc)."""
     path = Path(path)
-    text = _read_text(path)
+    text = read_text(path, encoding="utf-8-sig")
     rows = list(csv.reader(_io.StringIO(text)))
     rows = [r for r in rows if r and "".join(r).strip()]
     if not rows:
@@ -171,7 +162,7 @@ def read_ars408_csv(path: str | os.PathLike) -> Ars408Objects:
 
 # --- TU Delft example ---------------------------------------------------------------------------------------------
 def _read_matrix_csv(path: Path, rows: int) -> np.ndarray:
-    text = _read_text(path)
+    text = read_text(path, encoding="utf-8-sig")
     lines = [ln for ln in text.splitlines() if ln.strip()]
     if len(lines) != rows:
         raise InputError(path, f"expected {rows} rows, got {len(lines)}")
@@ -197,7 +188,7 @@ def read_tudelft_accumulator(path: str | os.PathLike) -> tuple[np.ndarray, np.nd
     """``(circles (M,4,3), radar_xy (M,2), rcs (M,))`` from the accumulator YAML (radar ``z`` = RCS)."""
     path = Path(path)
     try:
-        data = yaml.safe_load(_read_text(path))
+        data = yaml.safe_load(read_text(path, encoding="utf-8-sig"))
     except yaml.YAMLError:
         raise InputError(path, "not valid YAML") from None
     try:
@@ -248,7 +239,7 @@ def _pose(value, path, where) -> np.ndarray:
 def read_rig_yaml(path: str | os.PathLike) -> RigConfig:
     path = Path(path)
     try:
-        d = yaml.safe_load(_read_text(path))
+        d = yaml.safe_load(read_text(path, encoding="utf-8-sig"))
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         raise InputError(path, f"not valid YAML{f' at line {mark.line + 1}' if mark else ''}") from None

@@ -5,11 +5,13 @@ Projection is :meth:`radarcal.camera.Camera.project_from` (the one projection of
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from radarcal.camera import Camera
+from radarcal.extrinsics.refine import PARAM_NAMES  # one definition of the pose parameters (re-exported)
+from radarcal.extrinsics.refine import parameter_profiles as cost_profiles  # the one profile evaluator (re-exported)
 from radarcal.report._common import new_figure, show_image
 
 __all__ = [
@@ -22,7 +24,6 @@ __all__ = [
     "cost_profile_figure",
 ]
 
-PARAM_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
 
 
 def project_cloud(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.ndarray, max_points: int | None = 60_000, seed: int = 0, return_count: bool = False):
@@ -116,25 +117,6 @@ def edge_residual_histogram_figure(residual_px: np.ndarray, robust_scale_px: flo
     ax.set_title(f"{title} (n = {r.size})")
     ax.legend(fontsize=8)
     return fig
-
-
-def cost_profiles(cost: Callable[[np.ndarray], float], x0: np.ndarray, half_widths: Sequence[float], n: int = 21) -> tuple[np.ndarray, np.ndarray]:
-    """Evaluate ``cost(x0 + δ e_i)`` for δ on a symmetric grid of ``n`` steps per parameter.
-
-    Returns (offsets (P, n), costs (P, n)). ``cost`` takes a full parameter vector (e.g. the 6-vector
-    rx ry rz tx ty tz of a pose perturbation) and returns a scalar."""
-    x0 = np.asarray(x0, float).ravel()
-    hw = np.asarray(half_widths, float).ravel()
-    if hw.size != x0.size:
-        raise ValueError(f"{hw.size} half widths for {x0.size} parameters")
-    offsets = np.linspace(-1.0, 1.0, n)[None, :] * hw[:, None]
-    costs = np.empty_like(offsets)
-    for i in range(x0.size):
-        for j, d in enumerate(offsets[i]):
-            x = x0.copy()
-            x[i] += d
-            costs[i, j] = float(cost(x))
-    return offsets, costs
 
 
 def cost_profile_figure(offsets: np.ndarray, costs: np.ndarray, names: Sequence[str] = PARAM_NAMES, display_scale: Sequence[float] | None = None, units: Sequence[str] | None = None, sigma: Sequence[float] | None = None, title: str = "Cost along each parameter around the optimum (observability)"):
