@@ -25,10 +25,16 @@ _INTENSITY_NAMES = ("intensity", "reflectivity", "i", "remission", "scalar_inten
 
 @dataclass
 class Cloud:
+    """One LiDAR cloud in its sensor's frame. ``t``: seconds on the source's clock when the cloud was complete (the
+    time of its last point; None when the file gives none); ``sensor``: the bundle's name of the LiDAR (``lidar0``)
+    when known; ``name``: where it came from (file name, ``topic@stamp``, ``livox@t``) for messages."""
+
     points: np.ndarray  # (N,3) float32
     intensity: np.ndarray | None = None  # (N,) float32
-    timestamp: float | None = None
+    t: float | None = None
     ring: np.ndarray | None = None  # (N,) int32 scan line (beam) of a spinning multi-beam LiDAR, when the file has one
+    sensor: str = ""
+    name: str = ""
 
     def __len__(self) -> int:
         return len(self.points)
