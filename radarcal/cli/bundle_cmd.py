@@ -10,6 +10,7 @@ import typer
 from radarcal import geometry
 from radarcal.bundle import Provenance, hash_inputs, load_bundle, load_or_create_bundle, save_bundle
 from radarcal.cli.common import JsonOpt, command_line, emit
+from radarcal.cli.outputs import check_outputs
 from radarcal.errors import InputError
 from radarcal.io import export_camera, import_camera, read_transform
 from radarcal.io.camera_formats import EXPORT_FORMATS
@@ -105,6 +106,7 @@ def export(
     b = load_bundle(bundle)
     text = export_camera(b.camera(camera), fmt, camera)
     if out is not None:
+        check_outputs(bundle, [("export", out)], b)
         try:
             out.write_text(text)
         except OSError as e:

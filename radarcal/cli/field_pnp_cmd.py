@@ -8,6 +8,7 @@ import numpy as np
 import typer
 
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.outputs import check_outputs
 from radarcal.errors import InputError
 
 __all__ = ["field_pnp"]
@@ -69,6 +70,7 @@ def field_pnp(
         if not v > 0:
             raise InputError(opt, f"must be > 0, got {v}")
     b = load_bundle(bundle)
+    check_outputs(bundle, [("error map", error_map_png), ("overlay", overlay)], b, inputs=[points, image])
     cam = b.camera(camera)
     if field is not None:
         fm = load_field(field)
@@ -122,6 +124,24 @@ def field_pnp(
     em = error_map(cam, res.T_cam_field, res.cov_pose, fm, step=grid, pixel_sigma=pixel_sigma, range_sigma=range_sigma)
     em_print = em if grid >= 2.0 else error_map(cam, res.T_cam_field, res.cov_pose, fm, step=2.0, pixel_sigma=pixel_sigma, range_sigma=range_sigma)
 
+    # --- figures first (a failure leaves the bundle as it was), then the bundle -----------------------------------
+    if error_map_png is not None:
+        from radarcal.pnp.figures import save_error_map_png
+
+        try:
+            save_error_map_png(error_map_png, em, fm, res.camera_position, names, title=f"{camera} on {fm.name}: 1σ localisation error for {click_sigma:g} px clicks, {pixel_sigma:g} px detections")
+        except (ValueError, OSError) as e:  # matplotlib: unknown extension; the file system: full, vanished folder
+            raise InputError(error_map_png, f"cannot write the error map ({e})") from None
+
+    if overlay is not None:
+        import cv2
+
+        from radarcal.pnp.figures import draw_overlay
+
+        over = draw_overlay(read_image(image), cam, res.T_cam_field, fm, names, res.uv)
+        if not cv2.imwrite(str(overlay), over):
+            raise InputError(overlay, "cannot write the overlay image (unknown extension or unwritable folder)")
+
     # --- write the bundle ------------------------------------------------------------------------------------
     per_point = {n: float(np.linalg.norm(r)) for n, r in zip(names, res.residuals_px)}
     prov = Provenance(command=command_line(), inputs_sha256=hash_inputs([picks_src] + ([image] if image else []), extra={"field": fm.to_dict(), "click_sigma": click_sigma, "max_rms": max_rms, "ransac_px": ransac_px}))
@@ -147,21 +167,6 @@ def field_pnp(
         {"field": fm.name, "camera": camera, "click_sigma_px": click_sigma, "pixel_sigma_px": pixel_sigma, "range_sigma_m": range_sigma, "rms_px": res.rms_px, "depth_source": used, "lidar": lidar_name, "warnings": res.warnings, "picks_file": str(picks_src)},
     )
     save_bundle(b, bundle)
-    if error_map_png is not None:
-        from radarcal.pnp.figures import save_error_map_png
-
-        save_error_map_png(error_map_png, em, fm, res.camera_position, names, title=f"{camera} on {fm.name}: 1σ localisation error for {click_sigma:g} px clicks, {pixel_sigma:g} px detections")
-
-    if overlay is not None:
-        import cv2
-
-        from radarcal.pnp.figures import draw_overlay
-
-        over = draw_overlay(read_image(image), cam, res.T_cam_field, fm, names, res.uv)
-        overlay.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(overlay), over):
-            raise InputError(overlay, "cannot write the overlay image (unknown extension or unwritable folder)")
-
     # --- report ----------------------------------------------------------------------------------------------
     from radarcal import geometry
 

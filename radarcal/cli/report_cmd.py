@@ -9,7 +9,7 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import JsonOpt, emit, err_console
-from radarcal.errors import InputError
+from radarcal.cli.outputs import check_outputs, input_file
 
 
 def report(
@@ -28,14 +28,11 @@ def report(
     from radarcal.report.html import render_html
 
     b = load_bundle(bundle)
-    if tracks is not None and not tracks.is_file():
-        raise InputError(tracks, "track file not found")
-    if truth is not None and not truth.is_file():
-        raise InputError(truth, "truth track file not found")
-    if output.exists() and output.is_dir():
-        raise InputError(output, "is a directory; give an .html file name")
-    if not output.parent.exists():
-        raise InputError(output, f"folder {output.parent} does not exist")
+    if tracks is not None:
+        input_file(tracks, "track file")
+    if truth is not None:
+        input_file(truth, "truth track file")
+    check_outputs(bundle, [("report", output)], b, inputs=[tracks, truth])
     err_console.print(f"[dim]building report from {bundle} ({len(b.sessions)} session file(s))…[/dim]")
     content = build_report(b, session, tracks, truth)
     html = render_html(title or f"radarcal report: {bundle.name}", content.sections, subtitle=str(bundle.resolve()), dpi=dpi)
