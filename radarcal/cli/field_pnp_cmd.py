@@ -58,7 +58,7 @@ def field_pnp(
     from radarcal.io import read_image
     from radarcal.pnp.error_map import error_map
     from radarcal.pnp.field_pnp import FieldPnPError, PnPOptions, solve_field_pnp
-    from radarcal.pnp.picks import DEFAULT_PICKS, has_display, pick_landmarks, read_picks, write_picks
+    from radarcal.pnp.picks import DEFAULT_PICKS, has_display, pick_landmarks, read_picks, save_picks
 
     if overlay is not None and image is None:
         raise InputError("--overlay", "needs --image (the overlay is drawn on it)")
@@ -87,17 +87,22 @@ def field_pnp(
         names, uv = read_picks(points, fm.landmarks)
         picks_src = points
     elif image is not None:
-        if not has_display():
-            raise InputError("--image", "no display for the interactive picker (headless); click the landmarks elsewhere and pass --points picks.csv (name,u,v rows)")
-        img = read_image(image)
-        want = [s.strip() for s in landmarks.split(",")] if landmarks else DEFAULT_PICKS[side]
-        unknown = [n for n in want if n not in fm.landmarks]
-        if unknown:
-            raise InputError("--landmarks", f"unknown landmark(s) {', '.join(unknown)} (the field has: {', '.join(sorted(fm.landmarks))})")
-        names, uv = pick_landmarks(img, want, fm)
         picks_src = points or image.with_suffix(".picks.csv")
-        write_picks(picks_src, names, uv)
-        err_console.print(f"wrote {len(names)} picks to {picks_src}")
+        if not has_display():
+            if points is not None or not picks_src.is_file():
+                raise InputError("--image", "no usable display for the interactive picker (headless, or no GUI toolkit); click the landmarks elsewhere and pass --points picks.csv (name,u,v rows)")
+            err_console.print(f"no usable display for the picker: using the picks saved earlier in {picks_src}")
+            names, uv = read_picks(picks_src, fm.landmarks)
+        else:
+            img = read_image(image)
+            want = [s.strip() for s in landmarks.split(",")] if landmarks else DEFAULT_PICKS[side]
+            unknown = [n for n in want if n not in fm.landmarks]
+            if unknown:
+                raise InputError("--landmarks", f"unknown landmark(s) {', '.join(unknown)} (the field has: {', '.join(sorted(fm.landmarks))})")
+            check_outputs(bundle, [("picks file", picks_src)], b, inputs=[image])
+            names, uv = pick_landmarks(img, want, fm)
+            save_picks(picks_src, names, uv)
+            err_console.print(f"wrote {len(names)} picks to {picks_src}")
     elif points is not None:
         raise InputError(points, "picks file not found (expected name,u,v rows; or pass --image to click them)")
     else:
