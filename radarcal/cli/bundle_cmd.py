@@ -68,9 +68,20 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool 
 @app.command()
 def validate(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool = JsonOpt) -> None:
     """Load and check the bundle; exit 0 when valid, 2 with the offending field otherwise."""
+    from radarcal.verdicts import forced_entries
+
     b = load_bundle(bundle)
+    flags = forced_entries(b)
     summary = {"ok": True, "path": str(bundle), "cameras": sorted(b.cameras), "transforms": sorted(b.transforms)}
-    emit(summary, as_json, lambda s: typer.echo(f"ok: {bundle}: {len(b.cameras)} camera(s), {len(b.transforms)} transform(s)"))
+    if flags:
+        summary["warnings"] = flags
+
+    def human(s: dict) -> None:
+        typer.echo(f"ok: {bundle}: {len(b.cameras)} camera(s), {len(b.transforms)} transform(s)" + (f", {len(flags)} flagged" if flags else ""))
+        for w in flags:
+            typer.echo(f"  warning: {w}")
+
+    emit(summary, as_json, human)
 
 
 @app.command("import")

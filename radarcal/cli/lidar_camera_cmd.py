@@ -230,6 +230,8 @@ def lidar_camera(
     if not converged:
         refusals.append("the refinement did not converge")
     summary["refused"] = refusals
+    if refusals and force:
+        residual["forced"] = list(refusals)  # `bundle validate`, the report and `run` show it
     if not refusals or force:
         inputs = [*images, *clouds] + [p for p in (init, corners, board_uv) if p is not None]
         arrays["T_final"] = T

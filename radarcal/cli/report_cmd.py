@@ -26,6 +26,7 @@ def report(
     from radarcal.bundle import load_bundle
     from radarcal.report.build import build_report
     from radarcal.report.html import render_html
+    from radarcal.verdicts import forced_entries
 
     b = load_bundle(bundle)
     if tracks is not None:
@@ -45,6 +46,7 @@ def report(
         "sections": [s.title for s in content.sections],
         "figures": content.n_figures,
         "skipped": content.skipped,
+        "warnings": forced_entries(b),
     }
 
     def human(s: dict) -> None:
@@ -53,5 +55,7 @@ def report(
             typer.echo(f"  - {t}")
         for k in s["skipped"]:
             typer.echo(f"  skipped: {k}")
+        for w in s["warnings"]:
+            typer.echo(f"  warning: {w}")
 
     emit(summary, as_json, human)

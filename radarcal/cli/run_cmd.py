@@ -73,7 +73,9 @@ def run(
     check_outputs(bundle, [("track file", out), ("minimap", minimap)], b, inputs=[detections, rep.detections if rep else None, rep.truth if rep else None])
     if serial:
         check_serial_port(serial)
-    warnings = run_warnings(has_clouds, no_lidar, replay is not None)
+    from radarcal.verdicts import forced_entries
+
+    warnings = run_warnings(has_clouds, no_lidar, replay is not None) + [f"bundle {w}" for w in forced_entries(b)]
     for w in warnings:
         err_console.print(f"warning: {w}", style="yellow")
     pipe = Pipeline(b, cam_name, lidar_name if has_clouds else None, cfg)
@@ -208,6 +210,9 @@ def hero_offset(
     old = float(b.runtime.get("hero_range_offset_m", 0.0))
     off = compute_hero_offset(measured, actual)
     b.runtime["hero_range_offset_m"] = off
+    b.runtime.pop("hero_range_offset_forced", None)
+    if problem:
+        b.runtime["hero_range_offset_forced"] = problem
     b.runtime["hero_range_offset_note"] = f"{command_line()}"
     save_bundle(b, bundle)
     emit({"bundle": str(bundle), "hero_range_offset_m": off, "previous_m": old, "measured_m": measured, "actual_m": actual, **extra}, as_json,
