@@ -8,7 +8,7 @@ import numpy as np
 import typer
 
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
-from radarcal.cli.outputs import check_outputs
+from radarcal.cli.outputs import check_outputs, input_file
 from radarcal.errors import InputError
 
 __all__ = ["field_pnp"]
@@ -69,6 +69,8 @@ def field_pnp(
     for opt, v in (("--click-sigma", click_sigma), ("--max-rms", max_rms), ("--ransac-px", ransac_px), ("--grid", grid)):
         if not v > 0:
             raise InputError(opt, f"must be > 0, got {v}")
+    if image is not None:
+        input_file(image, "image")
     b = load_bundle(bundle)
     check_outputs(bundle, [("error map", error_map_png), ("overlay", overlay)], b, inputs=[points, image])
     cam = b.camera(camera)

@@ -79,6 +79,19 @@ def _solve(views: list[ViewInput], board: BoardSpec, files: list[Path], model: s
         raise InputError(files[0].parent if files else "SOURCE", str(e)) from None
 
 
+def _check_sources(sources: list[str]) -> None:
+    """Every SOURCE exists (expand_sources), and a file named explicitly (not found in a folder or by a glob, where
+    unreadable frames are only rejected views) is a readable image or a video (InputError naming it)."""
+    from radarcal.intrinsics.collect import VIDEO_EXTS
+    from radarcal.io import read_image
+
+    expand_sources(sources)
+    for s in sources:
+        p = Path(s)
+        if p.is_file() and p.suffix.lower() not in VIDEO_EXTS:
+            read_image(p, grayscale=True)
+
+
 def _uncertainty_summary(unc) -> dict:
     """What the projection-σ map says: the centre, median and 90th percentile (px), where it is within 2x the
     centre's (what this data set can give), and where it is below the per-corner noise (``valid_fraction``)."""
@@ -259,6 +272,7 @@ def intrinsics(
     if stereo and not right:
         raise InputError("--stereo", "needs the right camera's images with --right")
     b = load_or_create_bundle(bundle)  # fail early on a broken bundle
+    _check_sources([*sources, *(right or [])])  # and on a source that cannot be read, before any detection
 
     views0, spec0, layout0, files0 = _collect(sources, spec, workers, camera)
     res0 = _solve(views0, spec0, files0, model, not no_crossval, novelty, k_sigma)

@@ -10,6 +10,23 @@ import typer
 
 from radarcal.cli.common import JsonOpt, emit, err_console
 from radarcal.cli.outputs import check_outputs, input_file
+from radarcal.errors import InputError
+
+
+def _check_tracks(path: Path, what: str) -> None:
+    """A track file the report can draw: JSON lines with robot positions, all finite (InputError naming it)."""
+    import numpy as np
+
+    from radarcal.errors import read_text
+    from radarcal.report.build import read_tracks
+
+    input_file(path, what)
+    read_text(path, what)  # undecodable bytes -> one line naming the file
+    _t, xyz = read_tracks(path)
+    if not xyz:
+        raise InputError(path, f"no robot positions in the {what} (expected JSON lines {{\"t\", \"robots\": [{{\"label\", \"x\", \"y\"}}]}} as written by radarcal run --out)")
+    if not all(np.all(np.isfinite(p)) for p in xyz.values()) or not all(np.all(np.isfinite(t)) for t in _t.values()):
+        raise InputError(path, f"non-finite time or position in the {what}")
 
 
 def report(
@@ -29,10 +46,11 @@ def report(
     from radarcal.verdicts import forced_entries
 
     b = load_bundle(bundle)
-    if tracks is not None:
-        input_file(tracks, "track file")
-    if truth is not None:
-        input_file(truth, "truth track file")
+    for path, what in ((tracks, "track file"), (truth, "truth track file")):
+        if path is not None:
+            _check_tracks(path, what)
+    if session is not None and not session.is_dir():
+        raise InputError(session, "session folder not found" if not session.exists() else "is not a folder (give the folder of session .npz files)")
     check_outputs(bundle, [("report", output)], b, inputs=[tracks, truth])
     err_console.print(f"[dim]building report from {bundle} ({len(b.sessions)} session file(s))…[/dim]")
     content = build_report(b, session, tracks, truth)
