@@ -43,7 +43,7 @@ def _readout(b, e) -> str | None:
     return format_camera_on_field(T_cam_other) if other == "field" else format_camera_in_lidar(T_cam_other)
 
 
-def _parse_size(text: str) -> tuple[int, int]:
+def parse_image_size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().replace("*", "x").split("x"))
     except ValueError:
@@ -102,7 +102,7 @@ def import_(
     from radarcal.io.camera_formats import kitti_camera_index
     from radarcal.io.tool_calib_files import read_tool_calib
 
-    size = _parse_size(image_size) if image_size else None
+    size = parse_image_size(image_size) if image_size else None
     cam, fmt = import_camera(file, select, size)
     T_cam_lidar = None
     if fmt in ("kitti", "opencalib", "calibanything"):

@@ -239,7 +239,8 @@ def export_camera(cam: Camera, fmt: str, name: str = "cam0") -> str:
             return Path(p).read_text()
     if fmt == "kalibr":
         if cam.model == "pinhole" and cam.dist.size > 5 or (cam.dist.size == 5 and cam.dist[4] != 0):
-            raise InputError(name, "Kalibr radtan has 4 coefficients; this camera uses more (k3 or rational terms)")
+            raise InputError(name, "Kalibr radtan has 4 coefficients; this camera uses more (k3 or rational terms): calibrate with "
+                                   "`radarcal intrinsics --model pinhole4` (k3 fixed at 0) for a camera Kalibr can take")
         d = {
             name: {
                 "camera_model": "pinhole",
