@@ -305,7 +305,7 @@ def intrinsics(
         b.set_camera(name, cam, rms_px=rms, sigma=sigma, provenance=prov, extra=extra)
         save_session(b, f"intrinsics/{name}", _session_arrays(res), {"camera": name, "summary": s, "board": res.board.__dict__})
     if st is not None:
-        b.set_transform(right_camera, camera, st.T_cam1_cam0, method="intrinsics --right (board pairs, intrinsics fixed)", residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)
+        b.set_transform(right_camera, camera, st.T_cam1_cam0, method="intrinsics --right (board pairs, " + ("mono intrinsics fixed)" if fix_intrinsics else "jointly with both cameras' intrinsics)"), residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)
         save_session(
             b,
             f"stereo/{camera}_{right_camera}",
