@@ -6,7 +6,7 @@ STAMP := $(VENV)/.radarcal-installed
 export MPLBACKEND := Agg
 export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
-.PHONY: demo test test-slow bench install sysdeps clean
+.PHONY: demo test test-slow bench install sysdeps clean notebooks
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -33,6 +33,13 @@ test: $(STAMP) sysdeps
 
 test-slow: $(STAMP) sysdeps
 	$(PY) -m pytest -q -m slow
+
+# The report notebooks: installs Jupyter (JupyterLab to open them) and executes each one headless into build/notebooks/
+# (the same command as docs/report.md; set RADARCAL_REPORT_BUNDLE=calib.yaml to report on your own bundle).
+notebooks: $(STAMP) sysdeps
+	$(PY) -m pip install -q -e '.[notebooks]'
+	@mkdir -p build/notebooks
+	for nb in notebooks/*.ipynb; do $(VENV)/bin/jupyter nbconvert --to html --execute "$$nb" --output-dir build/notebooks || exit 1; done
 
 bench: $(STAMP) sysdeps
 	$(PY) -m benchmarks

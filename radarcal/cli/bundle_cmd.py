@@ -14,6 +14,7 @@ from radarcal.cli.outputs import check_outputs
 from radarcal.errors import InputError
 from radarcal.io import export_camera, import_camera, read_transform
 from radarcal.io.camera_formats import EXPORT_FORMATS
+from radarcal.readout import format_camera_in_lidar as describe_T_cam_lidar
 
 app = typer.Typer(help="Inspect and edit the calibration bundle.", no_args_is_help=True)
 
@@ -26,11 +27,24 @@ def _summary(b) -> dict:
     tfs = {}
     for n, e in b.transforms.items():
         xyz_rpy = geometry.T_to_xyz_rpy_deg(e.T)
-        tfs[n] = {"target": e.target, "source": e.source, "T": e.T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "method": e.method, "residual": e.residual, "sigma": e.sigma}
+        tfs[n] = {"target": e.target, "source": e.source, "T": e.T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "method": e.method, "residual": e.residual, "sigma": e.sigma,
+                  "readout": _readout(b, e)}
     return {"path": str(b.path), "cameras": cams, "sensors": b.sensors, "transforms": tfs, "field": (b.field_model or {}).get("name"), "runtime": b.runtime, "sessions": b.sessions}
 
 
-def _parse_size(text: str) -> tuple[int, int]:
+def _readout(b, e) -> str | None:
+    """The camera's pose as people read it (see radarcal.readout) when the entry relates a camera to a LiDAR or the
+    field; None otherwise."""
+    from radarcal.readout import format_camera_in_lidar, format_camera_on_field
+
+    cam, other = (e.target, e.source) if e.target in b.cameras else (e.source, e.target) if e.source in b.cameras else (None, None)
+    if cam is None or other in b.cameras:
+        return None
+    T_cam_other = b.T(cam, other)
+    return format_camera_on_field(T_cam_other) if other == "field" else format_camera_in_lidar(T_cam_other)
+
+
+def parse_image_size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().replace("*", "x").split("x"))
     except ValueError:
@@ -55,6 +69,8 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool 
             x, y, z = t["xyz_m"]
             r, p, yw = t["rpy_deg"]
             typer.echo(f"  {n}: xyz=({x:.4f}, {y:.4f}, {z:.4f}) m  rpy=({r:.3f}, {p:.3f}, {yw:.3f}) deg  [{t['method'] or '-'}]")
+            if t["readout"]:
+                typer.echo(f"      {t['readout']}")
         for n, meta in s["sensors"].items():
             if meta.get("type") != "camera":
                 typer.echo(f"  sensor {n}: {meta}")
@@ -87,20 +103,38 @@ def validate(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: b
 @app.command("import")
 def import_(
     bundle: Path = typer.Argument(..., help="Bundle file (created if missing)."),
-    file: Path = typer.Argument(..., help="ROS camera_info YAML, OpenCV YAML, Kalibr camchain or radarcal JSON."),
+    file: Path = typer.Argument(..., help="ROS camera_info YAML, OpenCV YAML, Kalibr camchain, radarcal JSON, KITTI calib_*.txt, OpenCalib intrinsic JSON or Calib-Anything calib.txt."),
     camera: str = typer.Option(..., "--camera", help="Name of the camera in the bundle, e.g. cam0."),
-    select: str = typer.Option(None, "--select", help="Camera inside a multi-camera file (Kalibr cam1; OpenCV stereo 'left'/'right' = M1/D1 or M2/D2)."),
-    image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT, for files that do not record it (OpenCV stereo_calib output)."),
+    select: str = typer.Option(None, "--select", help="Camera inside a multi-camera file (Kalibr cam1; OpenCV stereo 'left'/'right' = M1/D1 or M2/D2; KITTI cam0..cam3, default cam2)."),
+    image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT, for files that do not record it (OpenCV stereo_calib output, KITTI)."),
+    lidar: str = typer.Option("lidar0", "--lidar", help="Frame name for the LiDAR -> camera extrinsic when the file also holds one (KITTI Tr_velo_to_cam, Calib-Anything T)."),
     as_json: bool = JsonOpt,
 ) -> None:
-    """Import camera intrinsics from another tool's file."""
-    size = _parse_size(image_size) if image_size else None
+    """Import camera intrinsics (and the LiDAR -> camera extrinsic, when the file holds one) from another tool's file."""
+    from radarcal.io.camera_formats import kitti_camera_index
+    from radarcal.io.tool_calib_files import read_tool_calib
+
+    size = parse_image_size(image_size) if image_size else None
     cam, fmt = import_camera(file, select, size)
+    T_cam_lidar = None
+    if fmt in ("kitti", "opencalib", "calibanything"):
+        T_cam_lidar = read_tool_calib(file, kitti_camera_index(select) if fmt == "kitti" else 2).T_cam_lidar
     b = load_or_create_bundle(bundle)
-    b.set_camera(camera, cam, provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs([file])), extra={"imported_from": fmt})
+    prov = Provenance(command=command_line(), inputs_sha256=hash_inputs([file]))
+    b.set_camera(camera, cam, provenance=prov, extra={"imported_from": fmt})
+    if T_cam_lidar is not None:
+        b.set_sensor(lidar, type="lidar")
+        b.set_transform(camera, lidar, T_cam_lidar, method=f"imported ({fmt})", provenance=prov)
     save_bundle(b, bundle)
-    emit({"camera": camera, "format": fmt, "K": cam.K, "dist": cam.dist, "image_size": list(cam.image_size), "model": cam.model}, as_json,
-         lambda s: typer.echo(f"imported {camera} from {file} ({fmt}): {cam.model} {cam.width}x{cam.height} fx={cam.fx:.3f} fy={cam.fy:.3f} cx={cam.cx:.3f} cy={cam.cy:.3f} -> {bundle}"))
+    summary = {"camera": camera, "format": fmt, "K": cam.K, "dist": cam.dist, "image_size": list(cam.image_size), "model": cam.model,
+               "T_cam_lidar": T_cam_lidar, "transform": f"T_{camera}_{lidar}" if T_cam_lidar is not None else None}
+
+    def human(s: dict) -> None:
+        typer.echo(f"imported {camera} from {file} ({fmt}): {cam.model} {cam.width}x{cam.height} fx={cam.fx:.3f} fy={cam.fy:.3f} cx={cam.cx:.3f} cy={cam.cy:.3f} -> {bundle}")
+        if T_cam_lidar is not None:
+            typer.echo(f"  and {s['transform']} (LiDAR -> camera) from the same file: {describe_T_cam_lidar(T_cam_lidar)}")
+
+    emit(summary, as_json, human)
 
 
 @app.command()
@@ -146,5 +180,11 @@ def set_transform(
     save_bundle(b, bundle)
     xyz_rpy = geometry.T_to_xyz_rpy_deg(T)
     summary = {"name": f"T_{target}_{source}", "target": target, "source": source, "T": T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "bundle": str(bundle)}
-    emit(summary, as_json, lambda s: typer.echo(
-        f"set T_{target}_{source}: xyz=({xyz_rpy[0]:.4f}, {xyz_rpy[1]:.4f}, {xyz_rpy[2]:.4f}) m rpy=({xyz_rpy[3]:.3f}, {xyz_rpy[4]:.3f}, {xyz_rpy[5]:.3f}) deg -> {bundle}"))
+    summary["readout"] = _readout(b, b.transforms[f"T_{target}_{source}"])
+
+    def human(s: dict) -> None:
+        typer.echo(f"set T_{target}_{source}: xyz=({xyz_rpy[0]:.4f}, {xyz_rpy[1]:.4f}, {xyz_rpy[2]:.4f}) m rpy=({xyz_rpy[3]:.3f}, {xyz_rpy[4]:.3f}, {xyz_rpy[5]:.3f}) deg -> {bundle}")
+        if s["readout"]:
+            typer.echo(f"  {s['readout']}")
+
+    emit(summary, as_json, human)

@@ -14,7 +14,8 @@ from radarcal.board import BoardSpec, object_points
 from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
 from radarcal.cli.common import BundleOpt, JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
-from radarcal.intrinsics.collect import ViewInput, decide_layout, detect_files, diagnose, expand_sources, sample_video
+from radarcal.cli.bundle_cmd import parse_image_size
+from radarcal.intrinsics.collect import ViewInput, decide_layout, detect_files, diagnose, expand_sources, sample_video, views_from_corner_file
 from radarcal.intrinsics.detect import normalise_order
 from radarcal.intrinsics.pipeline import IntrinsicsResult, NotEnoughViews, run_intrinsics
 from radarcal.intrinsics.select import DESCRIPTOR_NAMES, TARGET_RANGES, view_descriptor
@@ -68,15 +69,24 @@ def _solve(views: list[ViewInput], board: BoardSpec, files: list[Path], model: s
     except NotEnoughViews as e:
         n_board = sum(1 for d in dets if d is not None and d.ok)
         detail = "; ".join(sorted({(v.error or (v.detection.reason if v.detection else "")) for v in views if not (v.detection and v.detection.ok)} - {""}))[:300]
+        without = [Path(v.name) for v in views if not (v.detection and v.detection.ok) and Path(v.name).is_file()]
+        hint = diagnose(without, board) if without else None  # a wrong --cols/--rows/--dict finds a stray board or none
+        kind = "chessboard" if board.kind == "chessboard" else "ChArUco board"
+        what = f"{board.cols}x{board.rows} {kind}"
         if n_board == 0:
-            hint = diagnose(files, board) if files else None
-            kind = "chessboard" if board.kind == "chessboard" else "ChArUco board"
-            what = f"{board.cols}x{board.rows} {kind}"
             msg = f"no {what} found in any of {len(views)} inputs" + (f": {hint}" if hint else f" ({detail})" if detail else "")
-            raise InputError(files[0].parent if files else "SOURCE", msg) from None
-        raise InputError(files[0].parent if files else "SOURCE", f"{e}; rejected: {detail}") from None
+        else:
+            msg = f"{e}: the {what} was found in {n_board} of {len(views)} inputs" + (f"; {hint}" if hint else f"; rejected: {detail}")
+        raise InputError(_where(files), msg) from None
     except SolveError as e:
-        raise InputError(files[0].parent if files else "SOURCE", str(e)) from None
+        raise InputError(_where(files), str(e)) from None
+
+
+def _where(files: list[Path]) -> Path | str:
+    """The input to name in an error: the one file, or the folder of several."""
+    if not files:
+        return "SOURCE"
+    return files[0] if len(files) == 1 else files[0].parent
 
 
 def _check_sources(sources: list[str]) -> None:
@@ -237,7 +247,9 @@ def _stereo(res0: IntrinsicsResult, res1: IntrinsicsResult, board: BoardSpec, jo
 
 
 def intrinsics(
-    sources: list[str] = typer.Argument(..., help="Images, folders, globs or video files (the left camera with --right)."),
+    sources: list[str] = typer.Argument(None, help="Images, folders, globs or video files (the left camera with --right); or none with --corners."),
+    corners: Path = typer.Option(None, "--corners", help="Corners detected by another tool instead of images: mrcal corners cache (.vnl) or CSV image,id,u,v (needs --image-size)."),
+    image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT of the images the --corners file was detected in."),
     board: str = typer.Option("chessboard", "--board", help="chessboard | charuco"),
     cols: int = typer.Option(..., "--cols", help="Chessboard: inner corners per row. ChArUco: squares per row."),
     rows: int = typer.Option(..., "--rows", help="Chessboard: inner corners per column. ChArUco: squares per column."),
@@ -247,7 +259,7 @@ def intrinsics(
     layout: str = typer.Option("auto", "--layout", help="ChArUco layout: auto | new | legacy."),
     camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
     bundle: Path = BundleOpt,
-    model: str = typer.Option("pinhole5", "--model", help="auto | pinhole5 | pinhole8 (rational) | fisheye (equidistant)."),
+    model: str = typer.Option("pinhole5", "--model", help="auto | pinhole5 | pinhole4 (k3 = 0, for Kalibr radtan) | pinhole8 (rational) | fisheye (equidistant)."),
     stereo: bool = typer.Option(False, "--stereo", help="Stereo: SOURCE are the left images, --right the right ones."),
     right: list[str] = typer.Option(None, "--right", help="Right-camera images/folder/glob (repeatable); implies --stereo."),
     right_camera: str = typer.Option("cam1", "--right-camera", help="Name of the right camera in the bundle."),
@@ -271,10 +283,17 @@ def intrinsics(
         raise InputError("--model", f"expected auto or one of {', '.join(MODELS)}, got {model!r}")
     if stereo and not right:
         raise InputError("--stereo", "needs the right camera's images with --right")
+    if (corners is None) == (not sources):
+        raise InputError("SOURCES", "give images (or folders, globs, videos) or --corners FILE")
+    if corners is not None and (right or image_size is None):
+        raise InputError("--corners", "needs --image-size WxH (the corner file does not record it) and takes no --right")
     b = load_or_create_bundle(bundle)  # fail early on a broken bundle
     _check_sources([*sources, *(right or [])])  # and on a source that cannot be read, before any detection
 
-    views0, spec0, layout0, files0 = _collect(sources, spec, workers, camera)
+    if corners is not None:
+        views0, spec0, layout0, files0 = views_from_corner_file(corners, spec, parse_image_size(image_size)), spec, {}, [corners]
+    else:
+        views0, spec0, layout0, files0 = _collect(sources, spec, workers, camera)
     res0 = _solve(views0, spec0, files0, model, not no_crossval, novelty, k_sigma)
     results = [(camera, res0, layout0, files0)]
     st = None
@@ -321,7 +340,7 @@ def intrinsics(
         b.set_camera(name, cam, rms_px=rms, sigma=sigma, provenance=prov, extra=extra)
         save_session(b, f"intrinsics/{name}", _session_arrays(res), {"camera": name, "summary": s, "board": res.board.__dict__})
     if st is not None and store:
-        b.set_transform(right_camera, camera, st.T_cam1_cam0, method="intrinsics --right (board pairs, intrinsics fixed)", residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)
+        b.set_transform(right_camera, camera, st.T_cam1_cam0, method="intrinsics --right (board pairs, " + ("mono intrinsics fixed)" if fix_intrinsics else "jointly with both cameras' intrinsics)"), residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)
         save_session(
             b,
             f"stereo/{camera}_{right_camera}",

@@ -13,6 +13,7 @@ from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
 from radarcal.cli.outputs import check_outputs
 from radarcal.errors import InputError
+from radarcal.readout import camera_in_lidar, format_camera_in_lidar
 
 __all__ = ["lidar_camera"]
 
@@ -184,7 +185,8 @@ def lidar_camera(
                         raise InputError(p, f"--lidar-edges {lidar_edges_kind} needs an intensity (reflectivity) field; the cloud has none")
                     le = lidar_scan_edges(pts, None if c.intensity is None else c.intensity[view], None if c.ring is None else c.ring[view], lidar_edges_kind, max_range)
                 if len(le.points) < 30:
-                    summary["warnings"].append(f"{p}: only {len(le.points)} LiDAR edge samples (try --voxel {voxel * 2:g})")
+                    advice = f"try --voxel {voxel * 2:g}" if lidar_edges_kind == "planes" else "a single sweep has few reflectivity steps in view: give more --image/--cloud scenes"
+                    summary["warnings"].append(f"{p}: only {len(le.points)} LiDAR edge samples ({advice})")
                 scenes.append(EdgeScene(cam, le, image_edges(im, min_length=image_edge_min_px, method=image_edges_kind)))
         opts = RefineOptions(coarse_search_deg=search_deg, translation_prior_m=trans_prior, fix_translation=rotation_only)
         if "intensity" in lidar_edges_kind:
@@ -209,7 +211,10 @@ def lidar_camera(
         for name in PARAM_NAMES:
             arrays[f"profile_{name}_offset"], arrays[f"profile_{name}_cost"] = res.profiles[name]
 
-    moved = geometry.pose_error(T, T0)
+    moved = (geometry.pose_error(T, T0)[0], float(np.linalg.norm(camera_in_lidar(T)["position_m"] - camera_in_lidar(T0)["position_m"])))  # deg, camera centre m
+    if not converged and refine and "refine" in summary and summary["refine"]["n_matches"] < 100:
+        summary["warnings"].append(f"these {len(clouds)} scene(s) do not constrain the extrinsic ({summary['refine']['n_matches']} edge matches): keep the initial "
+                                   f"extrinsic ({init_src}; `radarcal bundle set-transform` stores it) or add scenes with more edges (--image/--cloud pairs)")
     xyz_rpy = geometry.T_to_xyz_rpy_deg(T)
     summary.update({"T_cam_lidar": T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "moved_from_init_deg_m": list(moved), "method": " + ".join(method), "stored": False})
     if overlay is not None and imgs:
@@ -249,7 +254,11 @@ def lidar_camera(
         x, y, z = s["xyz_m"]
         r, p_, yw = s["rpy_deg"]
         typer.echo(f"T_{camera}_{lidar} [{s['method']}]: xyz=({x:.4f}, {y:.4f}, {z:.4f}) m  rpy=({r:.3f}, {p_:.3f}, {yw:.3f}) deg")
-        typer.echo(f"  moved {s['moved_from_init_deg_m'][0]:.3f} deg / {s['moved_from_init_deg_m'][1] * 100:.1f} cm from the initial guess ({s['init']})")
+        typer.echo(f"  {format_camera_in_lidar(s['T_cam_lidar'])}")
+        if rotation_only:
+            typer.echo(f"  rotated {s['moved_from_init_deg_m'][0]:.3f} deg from the initial guess ({s['init']}); the camera centre is kept (--rotation-only)")
+        else:
+            typer.echo(f"  moved {s['moved_from_init_deg_m'][0]:.3f} deg, camera centre {s['moved_from_init_deg_m'][1] * 100:.1f} cm from the initial guess ({s['init']})")
         if "pnp" in s:
             q = s["pnp"]
             typer.echo(f"  PnP: rms {q['rms_px']:.2f} px over {len(q['residuals_px']) - len(q['flagged_rows'])} picks; flagged rows {list(map(int, q['flagged_rows']))}; "
@@ -262,10 +271,9 @@ def lidar_camera(
         if "refine" in s:
             q = s["refine"]
             typer.echo(f"  edges: {q['message']}")
-            typer.echo(f"  edge score {q['edge_score_before_px']:.2f} -> {q['edge_score_after_px']:.2f} px; sigma rot {np.array2string(np.asarray(q['sigma_rot_deg']), precision=3)} deg, "
-                       f"trans {np.array2string(np.asarray(q['sigma_trans_m']) * 100, precision=2)} cm (lower bound); edge-direction spread {q['observability']['direction_spread']:.2f}")
-            typer.echo(f"  block-bootstrap sigma rot {np.array2string(np.asarray(q['sigma_bootstrap_rot_deg']), precision=3)} deg, "
-                       f"trans {np.array2string(np.asarray(q['sigma_bootstrap_trans_m']) * 100, precision=2)} cm (edge stretches resampled; biases not included)")
+            typer.echo(f"  edge score {q['edge_score_before_px']:.2f} -> {q['edge_score_after_px']:.2f} px; sigma {_sigma_text(q['sigma_rot_deg'], q['sigma_trans_m'], rotation_only)} "
+                       f"(lower bound); edge-direction spread {q['observability']['direction_spread']:.2f}")
+            typer.echo(f"  block-bootstrap sigma {_sigma_text(q['sigma_bootstrap_rot_deg'], q['sigma_bootstrap_trans_m'], rotation_only)} (edge stretches resampled; biases not included)")
         for w in s["warnings"]:
             typer.echo(f"  warning: {w}")
         if s.get("overlay"):
@@ -275,6 +283,17 @@ def lidar_camera(
     emit(summary, as_json, human)
     if refusals and not force:
         raise typer.Exit(1)
+
+
+def _sigma_text(rot_deg, trans_m, rotation_only: bool) -> str:
+    """σ of the pose for people: a value that is not finite or beyond 10 deg / 1 m says 'unobserved' (the data do not
+    constrain that direction) instead of a huge number; no translation σ for a rotation-only solve."""
+    def part(values, scale, limit, unit, digits):
+        v = np.asarray(values, float) * scale
+        return "[" + " ".join("unobserved" if not np.isfinite(x) or x > limit else f"{x:.{digits}f}" for x in v) + f"] {unit}"
+
+    rot = "rot " + part(rot_deg, 1.0, 10.0, "deg", 3)
+    return rot if rotation_only else rot + ", trans " + part(trans_m, 100.0, 100.0, "cm", 2)
 
 
 def _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, arrays):

@@ -272,6 +272,19 @@ def lidar_depth_edges(points: np.ndarray, el_bin_deg: float = 0.1, max_gap_deg: 
     return LidarEdges(E, dirs)
 
 
+def to_8bit_intensity(intensity: np.ndarray) -> np.ndarray:
+    """Intensities on the 0..255 scale the edge thresholds are given in. LiDARs and their drivers encode
+    reflectivity as 0..1 (KITTI, normalised drivers), 0..255 (Livox, most 8-bit fields) or 0..65535 (16-bit fields):
+    the encoding is read from the data's own maximum and rescaled; 8-bit data is returned unchanged."""
+    I = np.asarray(intensity, float)
+    top = float(np.nanmax(I)) if I.size else 0.0
+    if top <= 1.0 + 1e-6:
+        return I * 255.0
+    if top > 255.0 + 1e-6:
+        return I * (255.0 / 65535.0)
+    return I
+
+
 def lidar_intensity_edges(points: np.ndarray, intensity: np.ndarray | None, radius: float = 0.1, k: int = 10, min_jump: float = 25.0,
                           rel_jump: float = 0.3, cell: float = 0.02, dir_radius: float = 0.15, max_line_rms: float = 0.01,
                           max_range: float | None = None) -> LidarEdges:
@@ -279,12 +292,13 @@ def lidar_intensity_edges(points: np.ndarray, intensity: np.ndarray | None, radi
     whose intensities differ by more than ``max(min_jump, rel_jump * brighter)`` straddles a paint edge; its
     midpoint is a sample. Samples are averaged per ``cell`` and kept where their neighbours within ``dir_radius``
     form a line (perpendicular RMS < ``max_line_rms``), projected onto it; the direction is the line's. A cloud
-    without usable intensity (None, constant, all zero) gives no edges."""
+    without usable intensity (None, constant, all zero) gives no edges. ``min_jump`` is on the 0..255 scale
+    (:func:`to_8bit_intensity`)."""
     empty = LidarEdges(np.zeros((0, 3)), np.zeros((0, 3)))
     if intensity is None or len(points) < k + 1:
         return empty
     P = np.asarray(points, float)
-    I = np.asarray(intensity, float).ravel()
+    I = to_8bit_intensity(np.asarray(intensity, float).ravel())
     if len(I) != len(P) or not np.isfinite(I).all() or np.ptp(I) < min_jump:
         return empty
     if max_range is not None:
@@ -466,9 +480,10 @@ def lidar_scan_intensity_edges(points: np.ndarray, intensity: np.ndarray, ring: 
     is at least ``min_step`` intensity units and a ratio of ``min_ratio`` (bright/dark), and the largest of its
     neighbours along the line; the sample is the midpoint of the two points either side. Directions come from the
     main axis of neighbouring intensity-edge samples within ``dir_radius`` (stripe borders are lines across the
-    scan lines); samples without one are dropped unless ``keep_undirected``."""
+    scan lines); samples without one are dropped unless ``keep_undirected``. ``min_step`` is on the 0..255 scale
+    (:func:`to_8bit_intensity`: a 0..1 KITTI reflectance is rescaled, so 20 units is a step of 0.078 there)."""
     P = np.asarray(points, float)
-    I = np.asarray(intensity, float).ravel()
+    I = to_8bit_intensity(np.asarray(intensity, float).ravel())
     R = None if ring is None else np.asarray(ring).ravel()
     if max_range is not None:
         keep = np.linalg.norm(P, axis=1) < max_range

@@ -205,3 +205,17 @@ def diagnose(paths: list[Path], board: BoardSpec, sample: int = 3) -> str | None
         if hint:
             return f"{hint} (in {p.name})"
     return None
+
+
+def views_from_corner_file(path: Path, board: BoardSpec, image_size: tuple[int, int], min_fraction: float = 0.2) -> list[ViewInput]:
+    """Views from another tool's corner file (mrcal ``.vnl`` or CSV, see :mod:`radarcal.io.corner_files`) as if
+    detected here: a view with fewer than ``max(6, min_fraction * corners)`` found corners is kept but marked unusable."""
+    from radarcal.io.corner_files import read_corner_file
+
+    need = max(6, int(np.ceil(min_fraction * board.n_corners)))
+    views = []
+    for v in read_corner_file(path, board.n_corners):
+        ok = len(v.ids) >= need
+        det = Detection(ok, v.uv, v.ids, tuple(image_size), method="corner file", reason="" if ok else f"only {len(v.ids)} of {board.n_corners} corners in the file")
+        views.append(ViewInput(v.name, det))
+    return views

@@ -22,7 +22,7 @@ from radarcal.intrinsics.solve import Calibration, SolveError, calibrate, projec
 
 __all__ = ["CrossValidation", "ModelChoice", "split_halves", "projection_difference", "cross_validate", "choose_model"]
 
-_COMPLEXITY = {"pinhole5": 0, "fisheye": 1, "pinhole8": 2}
+_COMPLEXITY = {"pinhole4": -1, "pinhole5": 0, "fisheye": 1, "pinhole8": 2}
 
 
 @dataclass

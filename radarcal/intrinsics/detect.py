@@ -35,6 +35,7 @@ __all__ = [
     "edge_width_px",
     "grid_directions",
     "diagnose_board_size",
+    "diagnose_dictionary",
     "choose_charuco_layout",
     "normalise_order",
 ]
@@ -314,5 +315,29 @@ def diagnose_board_size(gray: np.ndarray, board: BoardSpec, max_extra: int = 2) 
             d = detect_charuco(small, other, None, min_corners=max(6, other.n_corners // 3))
             if d.ok:
                 return f"a {c}x{r} ChArUco board ({unit}) is visible but --cols {board.cols} --rows {board.rows} was given"
+    if board.kind == "charuco":
+        return diagnose_dictionary(small, board)
     return None
+
+
+COMMON_DICTIONARIES = ("DICT_4X4_50", "DICT_4X4_1000", "DICT_5X5_100", "DICT_5X5_1000", "DICT_6X6_250", "DICT_6X6_1000", "DICT_7X7_1000", "DICT_ARUCO_ORIGINAL", "DICT_APRILTAG_36h11")
+
+
+def diagnose_dictionary(gray: np.ndarray, board: BoardSpec, min_markers: int = 4) -> str | None:
+    """When no ArUco marker of the given dictionary is found: the common dictionary whose markers are in the image
+    (``"ArUco markers of DICT_5X5_100 are visible ..."``), or None. Marker ids beyond a smaller dictionary of the same
+    bit size decode as the larger one, so the hint names the family seen."""
+    found = []
+    for order, name in enumerate(COMMON_DICTIONARIES):
+        if name == board.dictionary or not hasattr(cv2.aruco, name):
+            continue
+        det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)))
+        _, ids, _ = det.detectMarkers(gray)
+        n = 0 if ids is None else len(ids)
+        if n >= min_markers:
+            found.append((n, order, name))  # a tie goes to the larger dictionary of a family (listed later)
+    if not found:
+        return None
+    n, _, name = max(found)
+    return f"{n} ArUco markers of {name} are visible but --dict {board.dictionary} was given"
 

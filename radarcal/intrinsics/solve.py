@@ -37,8 +37,9 @@ __all__ = [
     "board_pose",
 ]
 
-MODELS = ("pinhole5", "pinhole8", "fisheye")
+MODELS = ("pinhole5", "pinhole8", "fisheye", "pinhole4")  # pinhole4: k3 fixed at 0 (Kalibr radtan, ROS plumb_bob with 4 terms)
 _DIST_NAMES = {
+    "pinhole4": ["k1", "k2", "p1", "p2"],
     "pinhole5": ["k1", "k2", "p1", "p2", "k3"],
     "pinhole8": ["k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"],
     "fisheye": ["k1", "k2", "k3", "k4"],
@@ -135,9 +136,16 @@ def residuals(camera: Camera, rvecs: np.ndarray, tvecs: np.ndarray, object_point
     obj = np.concatenate([np.asarray(o, float).reshape(-1, 3) for o in object_points])
     img = np.concatenate([np.asarray(i, float).reshape(-1, 2) for i in image_points])
     vidx = np.repeat(np.arange(len(object_points)), [len(o) for o in object_points])
-    model = "fisheye" if camera.model == "fisheye" else ("pinhole8" if camera.dist.size >= 8 else "pinhole5")
+    model = model_of(camera)
     r = img - _project(_theta(camera, model), model, camera.image_size, np.asarray(rvecs, float).reshape(-1, 3), np.asarray(tvecs, float).reshape(-1, 3), obj, vidx)
     return np.split(r, np.cumsum([len(o) for o in object_points])[:-1])
+
+
+def model_of(camera: Camera) -> str:
+    """The solver model a camera's distortion vector belongs to."""
+    if camera.model == "fisheye":
+        return "fisheye"
+    return "pinhole8" if camera.dist.size >= 8 else "pinhole4" if camera.dist.size == 4 else "pinhole5"
 
 
 # --- one OpenCV solve ----------------------------------------------------------------------------------------
@@ -178,7 +186,7 @@ def solve_once(object_points: list[np.ndarray], image_points: list[np.ndarray], 
         else:
             obj = [np.asarray(o, np.float32).reshape(-1, 3) for o in object_points]
             img = [np.asarray(i, np.float32).reshape(-1, 2) for i in image_points]
-            flags = cv2.CALIB_RATIONAL_MODEL if model == "pinhole8" else 0
+            flags = cv2.CALIB_RATIONAL_MODEL if model == "pinhole8" else cv2.CALIB_FIX_K3 if model == "pinhole4" else 0
             K, D = None, None
             if guess is not None and guess.model == "pinhole":
                 K = guess.K.copy()
@@ -187,7 +195,7 @@ def solve_once(object_points: list[np.ndarray], image_points: list[np.ndarray], 
                 D[: min(n, guess.dist.size)] = guess.dist[:n]
                 flags |= cv2.CALIB_USE_INTRINSIC_GUESS
             rms, K, D, rv, tv = cv2.calibrateCamera(obj, img, size, K, D, flags=flags, criteria=crit)
-            dist = np.asarray(D, float).ravel()[: 8 if model == "pinhole8" else 5]
+            dist = np.asarray(D, float).ravel()[: len(_DIST_NAMES[model])]
     except cv2.error as e:
         msg = str(e).strip().splitlines()
         raise SolveError(f"OpenCV {model} solve failed: {msg[-1] if msg else e}") from None

@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.intrinsics._blas import single_thread_blas
-from radarcal.intrinsics.solve import _camera, _theta, board_pose, param_names
+from radarcal.intrinsics.solve import _camera, _theta, board_pose, model_of, param_names
 
 __all__ = ["StereoResult", "stereo_calibrate", "pair_by_name"]
 
@@ -70,12 +70,6 @@ def _pnp(cam: Camera, obj: np.ndarray, img: np.ndarray) -> np.ndarray:
     return geometry.T_from_rotvec(rv, tv)
 
 
-def _model_of(cam: Camera) -> str:
-    if cam.model == "fisheye":
-        return "fisheye"
-    return "pinhole8" if cam.dist.size >= 8 else "pinhole5"
-
-
 @single_thread_blas
 def stereo_calibrate(cam0: Camera, cam1: Camera, object_points: list[np.ndarray], image_points0: list[np.ndarray], image_points1: list[np.ndarray], k_sigma: float = 4.0, refine_intrinsics: bool = True) -> StereoResult:
     """Solve T_cam1_cam0. object_points[p] (N_p,3) are seen as image_points0[p] in cam0 and image_points1[p] in cam1."""
@@ -85,7 +79,7 @@ def stereo_calibrate(cam0: Camera, cam1: Camera, object_points: list[np.ndarray]
     obj = [np.asarray(o, float).reshape(-1, 3) for o in object_points]
     q0 = [np.asarray(q, float).reshape(-1, 2) for q in image_points0]
     q1 = [np.asarray(q, float).reshape(-1, 2) for q in image_points1]
-    m0, m1 = _model_of(cam0), _model_of(cam1)
+    m0, m1 = model_of(cam0), model_of(cam1)
     th0, th1 = _theta(cam0, m0), _theta(cam1, m1)
     P0, P1 = (len(th0), len(th1)) if refine_intrinsics else (0, 0)
     G = P0 + P1 + 6  # global parameters: [θ0, θ1,] rel6

@@ -1,5 +1,6 @@
-"""Camera-intrinsics interop: ROS camera_info YAML, OpenCV FileStorage YAML/XML, Kalibr camchain YAML, and
-radarcal JSON ``{image_size, K, dist, model}``. ``import_camera`` detects the format from the content."""
+"""Camera-intrinsics interop: ROS camera_info YAML, OpenCV FileStorage YAML/XML, Kalibr camchain YAML, radarcal JSON
+``{image_size, K, dist, model}``, and the intrinsics inside KITTI / OpenCalib / Calib-Anything calibration files
+(:mod:`radarcal.io.tool_calib_files`). ``import_camera`` detects the format from the content."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import yaml
 
 from radarcal.camera import Camera
 from radarcal.errors import InputError, read_text
+from radarcal.io.tool_calib_files import detect_tool_format, read_tool_calib
 
 __all__ = ["import_camera", "export_camera", "detect_camera_format", "EXPORT_FORMATS"]
 
@@ -154,8 +156,31 @@ def import_camera(path: str | os.PathLike, name: str | None = None, image_size: 
     return cam, fmt
 
 
+def kitti_camera_index(name: str | None) -> int:
+    """``--select`` for a KITTI file: ``cam2`` / ``2`` / ``P2`` -> 2 (default 2, the left colour camera)."""
+    if not name:
+        return 2
+    digits = name.lower().removeprefix("cam").removeprefix("p")
+    if digits not in ("0", "1", "2", "3"):
+        raise InputError("--select", f"a KITTI file has cameras cam0..cam3 (P0..P3), got {name!r}")
+    return int(digits)
+
+
+def _import_tool_file(path: Path, text: str, fmt: str, name: str | None, image_size: tuple[int, int] | None) -> Camera:
+    tc = read_tool_calib(path, kitti_camera_index(name) if fmt == "kitti" else 2, text=text)
+    if tc.K is None:
+        raise InputError(path, f"{fmt} file holds no intrinsics (an extrinsic only: use `radarcal bundle set-transform` or --init)")
+    size = image_size or tc.image_size
+    if size is None:
+        raise InputError(path, f"{fmt} calibration files do not record the image size: give --image-size WxH (KITTI image_2: 1242x375)")
+    return _camera(path, size, tc.K, tc.dist, "pinhole")
+
+
 def _import_any(path: Path, name: str | None, image_size: tuple[int, int] | None) -> tuple[Camera, str]:
     text = read_text(path, errors="replace")
+    tool = detect_tool_format(text)
+    if tool is not None:
+        return _import_tool_file(path, text, tool, name, image_size), tool
     fmt = detect_camera_format(text)
     if fmt == "opencv":
         return _import_opencv(path, text, name, image_size), fmt
@@ -173,7 +198,7 @@ def _import_any(path: Path, name: str | None, image_size: tuple[int, int] | None
         return _import_ros(path, d), fmt
     if fmt == "kalibr" and isinstance(d, dict):
         return _import_kalibr(path, d, name), fmt
-    raise InputError(path, "unrecognised camera file (expected ROS camera_info, OpenCV YAML, Kalibr camchain or radarcal JSON)")
+    raise InputError(path, "unrecognised camera file (expected ROS camera_info, OpenCV YAML, Kalibr camchain, radarcal JSON, KITTI calib_*.txt, OpenCalib JSON or Calib-Anything calib.txt)")
 
 
 def _ros_model(cam: Camera) -> str:
@@ -216,7 +241,8 @@ def export_camera(cam: Camera, fmt: str, name: str = "cam0") -> str:
             return Path(p).read_text()
     if fmt == "kalibr":
         if cam.model == "pinhole" and cam.dist.size > 5 or (cam.dist.size == 5 and cam.dist[4] != 0):
-            raise InputError(name, "Kalibr radtan has 4 coefficients; this camera uses more (k3 or rational terms)")
+            raise InputError(name, "Kalibr radtan has 4 coefficients; this camera uses more (k3 or rational terms): calibrate with "
+                                   "`radarcal intrinsics --model pinhole4` (k3 fixed at 0) for a camera Kalibr can take")
         d = {
             name: {
                 "camera_model": "pinhole",

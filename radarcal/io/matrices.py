@@ -1,5 +1,7 @@
 """4x4 transform files: JSON ``{"T_cam_lidar": [[...]]}`` / ``{"T": ...}`` / bare nested list, plain text with
-16 numbers, or 6 numbers ``x y z roll pitch yaw`` (metres, degrees)."""
+16 numbers, or 6 numbers ``x y z roll pitch yaw`` (metres, degrees); and the LiDAR -> camera extrinsic of another
+tool's file (KITTI ``calib_*.txt``: ``T_cam2_velo``; OpenCalib extrinsic JSON; Calib-Anything ``calib.txt``), see
+:mod:`radarcal.io.tool_calib_files`."""
 
 from __future__ import annotations
 
@@ -16,6 +18,13 @@ __all__ = ["read_transform", "parse_transform_text"]
 
 
 def parse_transform_text(text: str, source: object = "") -> np.ndarray:
+    from radarcal.io.tool_calib_files import detect_tool_format, read_tool_calib
+
+    if detect_tool_format(text) is not None:
+        tc = read_tool_calib(Path(str(source)), text=text)
+        if tc.T_cam_lidar is None:
+            raise InputError(source, f"{tc.format} file holds no LiDAR -> camera extrinsic")
+        return tc.T_cam_lidar
     text = text.strip()
     value = None
     if text.startswith("{") or text.startswith("["):

@@ -1,0 +1,62 @@
+"""Poses as people read them. Roll-pitch-yaw of ``T_cam_lidar`` sits at gimbal lock for every level LiDAR (the
+camera's z is the LiDAR's x), so a camera's pose is given in a *viewing frame* instead: x along the optical axis,
+y to the image's left, z to the image's top (the LiDAR / field convention). A camera looking straight down the
+LiDAR's x axis, image upright, then reads yaw = pitch = roll = 0.
+
+- :func:`camera_in_lidar`: where the camera sits in the LiDAR frame and which way it looks (from ``T_cam_lidar``).
+- :func:`camera_on_field`: the camera's position on the field and its heading / depression (from ``T_cam_field``).
+- :func:`pose_change`: how far one estimate moved from another, as one angle and one distance.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radarcal import geometry
+
+__all__ = ["R_CAM_VIEW", "camera_in_lidar", "camera_on_field", "pose_change", "format_camera_in_lidar", "format_camera_on_field"]
+
+# columns: the viewing frame's axes (forward, left, up) in camera coordinates (x right, y down, z forward)
+R_CAM_VIEW = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+
+
+def _view_angles(R_frame_cam: np.ndarray) -> dict[str, float]:
+    """yaw (left +), pitch (down +, i.e. looking below the frame's horizon) and roll (about the optical axis, the
+    image's left side up +) of the camera's viewing frame in a frame with z up, degrees."""
+    R = np.asarray(R_frame_cam, float) @ R_CAM_VIEW
+    roll, pitch, yaw = geometry.R_to_rpy_deg(R)
+    return {"yaw_deg": float(yaw), "pitch_down_deg": float(pitch), "roll_deg": float(roll)}
+
+
+def camera_in_lidar(T_cam_lidar: np.ndarray) -> dict:
+    """The camera in the LiDAR frame: ``position_m`` (x forward, y left, z up) and its viewing angles relative to the
+    LiDAR's forward axis (see the module docstring)."""
+    T_lidar_cam = geometry.invert_T(T_cam_lidar)
+    return {"position_m": T_lidar_cam[:3, 3].copy(), **_view_angles(T_lidar_cam[:3, :3])}
+
+
+def camera_on_field(T_cam_field: np.ndarray) -> dict:
+    """The camera on the field: ``position_m`` in field coordinates, ``heading_deg`` of its optical axis from the
+    field's +x towards +y, ``depression_deg`` below the horizontal, ``roll_deg``."""
+    T_field_cam = geometry.invert_T(T_cam_field)
+    a = _view_angles(T_field_cam[:3, :3])
+    return {"position_m": T_field_cam[:3, 3].copy(), "heading_deg": a["yaw_deg"], "depression_deg": a["pitch_down_deg"], "roll_deg": a["roll_deg"]}
+
+
+def pose_change(T_from: np.ndarray, T_to: np.ndarray) -> tuple[float, float]:
+    """(rotation in degrees, translation in metres) between two estimates of the same transform."""
+    return geometry.pose_error(T_to, T_from)
+
+
+def format_camera_in_lidar(T_cam_lidar: np.ndarray) -> str:
+    c = camera_in_lidar(T_cam_lidar)
+    x, y, z = c["position_m"]
+    return (f"camera at ({x:.3f}, {y:.3f}, {z:.3f}) m in the LiDAR frame (x fwd, y left, z up), looking yaw {c['yaw_deg']:+.3f} deg "
+            f"(left +), pitch {c['pitch_down_deg']:+.3f} deg (down +), roll {c['roll_deg']:+.3f} deg from the LiDAR's x axis")
+
+
+def format_camera_on_field(T_cam_field: np.ndarray) -> str:
+    c = camera_on_field(T_cam_field)
+    x, y, z = c["position_m"]
+    return (f"camera at ({x:.3f}, {y:.3f}, {z:.3f}) m on the field, heading {c['heading_deg']:.2f} deg from +x, "
+            f"{c['depression_deg']:.2f} deg below horizontal, roll {c['roll_deg']:+.2f} deg")
