@@ -288,7 +288,7 @@ def intrinsics(
     if corners is not None and (right or image_size is None):
         raise InputError("--corners", "needs --image-size WxH (the corner file does not record it) and takes no --right")
     b = load_or_create_bundle(bundle)  # fail early on a broken bundle
-    _check_sources([*sources, *(right or [])])  # and on a source that cannot be read, before any detection
+    _check_sources([*(sources or []), *(right or [])])  # and on a source that cannot be read, before any detection
 
     if corners is not None:
         views0, spec0, layout0, files0 = views_from_corner_file(corners, spec, parse_image_size(image_size)), spec, {}, [corners]

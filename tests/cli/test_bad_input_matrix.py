@@ -42,6 +42,7 @@ class Opt:
     skip: tuple[str, ...] = ()  # kinds that are legitimately accepted for this file (why: in ``why``)
     why: str = ""
     extra: Callable[[dict], list] | None = None  # options this file needs to be read at all
+    base: Callable[[dict], list] | None = None  # another minimal argument set for this file (instead of the command's)
 
 
 @dataclass
@@ -68,7 +69,8 @@ TABLE: dict[str, Cmd] = {
                                 [Opt(None, "bundle", "bundle", index=0), Opt(None, "transform", index=3)], _b, creates_bundle=True),
     "intrinsics": Cmd(lambda f: [f["board_images"], "--cols", "9", "--rows", "6", "--square", "0.025", "-b", f["bundle"], "--no-crossval"],
                       [Opt(None, "image", "input", index=0, skip=("nan", "header"), why="a list of image sources (no numbers, no header)"),
-                       Opt("--bundle", "bundle", "bundle"), Opt("--right", "image", skip=("nan", "header"), why="image sources (no numbers, no header)")],
+                       Opt("--bundle", "bundle", "bundle"), Opt("--right", "image", skip=("nan", "header"), why="image sources (no numbers, no header)"),
+                       Opt("--corners", "icorners", base=lambda f: ["--corners", f["icorners"], "--image-size", "640x480", "--cols", "9", "--rows", "6", "--square", "0.025", "-b", f["bundle"], "--no-crossval"])],
                       _b, creates_bundle=True),
     "lidar-camera": Cmd(lambda f: ["-b", f["bundle"], "--image", f["image"], "--cloud", f["cloud"], "--corners", f["corners"]],
                         [Opt("--bundle", "bundle", "bundle"), Opt("--image", "image"), Opt("--cloud", "cloud"), Opt("--corners", "corners"),
@@ -206,11 +208,13 @@ def world(tmp_path_factory):
     w["session"] = rep / "calib.sessions"
     w["board_images"] = REPO / "datasets" / "synth_board_640"
     w["text"] = root / "out.txt"
+    w["icorners"] = root / "corners_ids.csv"  # intrinsics --corners: image,id,u,v (3 views of the 9x6 board)
+    w["icorners"].write_text("image,id,u,v\n" + "".join(f"v{k}.png,{i},{100 + 30 * (i % 9) + 7 * k:.2f},{100 + 30 * (i // 9) + 3 * k:.2f}\n" for k in range(3) for i in range(54)))
     return w
 
 
 # --- bad files ----------------------------------------------------------------------------------------------------
-GOOD_TEXT_FORMATS = {"bundle", "camera", "transform", "corners", "uv", "picks", "field", "tracks", "detections", "names", "text"}
+GOOD_TEXT_FORMATS = {"bundle", "camera", "transform", "corners", "icorners", "uv", "picks", "field", "tracks", "detections", "names", "text"}
 
 
 def _nan_variant(fmt: str, good: str) -> str:
@@ -241,6 +245,7 @@ def _header_variant(fmt: str) -> bytes:
         "camera": b'{"unexpected": {"fields": 1}}\n',
         "transform": b"rotation: identity\n",
         "corners": b"a,b\n1,2\n3,4\n",
+        "icorners": b"image;id;u;v\nfoo;bar\n",
         "uv": b"name,x\nfoo,1\n",
         "picks": b"x,y,z,u\n1,2,3,4\n",
         "field": b"outline: 12\n",
@@ -326,7 +331,7 @@ def test_bad_file(world, tmp_path, capsys, name, opt, kind):
     shutil.copy(world["replay"] / "calib.yaml", bundle)
     bundle.chmod(0o640)
     w["bundle"] = bundle
-    args = [str(a) for a in spec.base(w)] + [str(a) for a in (opt.extra(w) if opt.extra else [])]
+    args = [str(a) for a in (opt.base or spec.base)(w)] + [str(a) for a in (opt.extra(w) if opt.extra else [])]
     culprit: Path
     if opt.role in ("input", "bundle"):
         if kind == "read-only":  # a bundle the command cannot write back
