@@ -180,6 +180,8 @@ def hero_offset(
         raise InputError("radarcal hero-offset", "give exactly one of --actual A or --marker LANDMARK")
     if marker is not None and replay is None:
         raise InputError("--marker", "needs --replay (a recording with the hero at the marker)")
+    if not max_spread > 0:
+        raise InputError("--max-spread", f"must be > 0 m, got {max_spread}")
     b = load_bundle(bundle)
     team = team or str(b.runtime.get("team", "red"))
     if team not in ("red", "blue"):
