@@ -420,12 +420,36 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+def _umask() -> int:
+    """The process umask (read without changing it where /proc allows; else set and restored at once)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _target_mode(path: Path) -> int:
+    """Permission bits for a file written at ``path``: the existing file's, else what ``open()`` gives a new file."""
+    try:
+        return path.stat().st_mode & 0o7777
+    except OSError:
+        return 0o666 & ~_umask()
+
+
 def _atomic_write(path: Path, data: bytes, keep_backup: bool = True) -> Path | None:
-    """Write ``data`` to ``path`` atomically; the previous file (if any) is kept as ``<name>.<UTC time>.bak``."""
+    """Write ``data`` to ``path`` atomically; the previous file (if any) is kept as ``<name>.<UTC time>.bak``.
+    The file keeps its permission bits (a new one follows the umask, as ``open()`` would create it)."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    mode = _target_mode(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     backup = None
     try:
+        os.fchmod(fd, mode)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()

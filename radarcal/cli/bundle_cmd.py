@@ -10,6 +10,7 @@ import typer
 from radarcal import geometry
 from radarcal.bundle import Provenance, hash_inputs, load_bundle, load_or_create_bundle, save_bundle
 from radarcal.cli.common import JsonOpt, command_line, emit
+from radarcal.cli.outputs import check_outputs
 from radarcal.errors import InputError
 from radarcal.io import export_camera, import_camera, read_transform
 from radarcal.io.camera_formats import EXPORT_FORMATS
@@ -83,9 +84,20 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool 
 @app.command()
 def validate(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool = JsonOpt) -> None:
     """Load and check the bundle; exit 0 when valid, 2 with the offending field otherwise."""
+    from radarcal.verdicts import forced_entries
+
     b = load_bundle(bundle)
+    flags = forced_entries(b)
     summary = {"ok": True, "path": str(bundle), "cameras": sorted(b.cameras), "transforms": sorted(b.transforms)}
-    emit(summary, as_json, lambda s: typer.echo(f"ok: {bundle}: {len(b.cameras)} camera(s), {len(b.transforms)} transform(s)"))
+    if flags:
+        summary["warnings"] = flags
+
+    def human(s: dict) -> None:
+        typer.echo(f"ok: {bundle}: {len(b.cameras)} camera(s), {len(b.transforms)} transform(s)" + (f", {len(flags)} flagged" if flags else ""))
+        for w in flags:
+            typer.echo(f"  warning: {w}")
+
+    emit(summary, as_json, human)
 
 
 @app.command("import")
@@ -139,6 +151,7 @@ def export(
     b = load_bundle(bundle)
     text = export_camera(b.camera(camera), fmt, camera)
     if out is not None:
+        check_outputs(bundle, [("export", out)], b)
         try:
             out.write_text(text)
         except OSError as e:

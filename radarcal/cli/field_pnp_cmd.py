@@ -8,6 +8,7 @@ import numpy as np
 import typer
 
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.outputs import check_outputs, input_file
 from radarcal.errors import InputError
 
 __all__ = ["field_pnp"]
@@ -57,7 +58,7 @@ def field_pnp(
     from radarcal.io import read_image
     from radarcal.pnp.error_map import error_map
     from radarcal.pnp.field_pnp import FieldPnPError, PnPOptions, solve_field_pnp
-    from radarcal.pnp.picks import DEFAULT_PICKS, has_display, pick_landmarks, read_picks, write_picks
+    from radarcal.pnp.picks import DEFAULT_PICKS, has_display, pick_landmarks, read_picks, save_picks
 
     if overlay is not None and image is None:
         raise InputError("--overlay", "needs --image (the overlay is drawn on it)")
@@ -68,7 +69,10 @@ def field_pnp(
     for opt, v in (("--click-sigma", click_sigma), ("--max-rms", max_rms), ("--ransac-px", ransac_px), ("--grid", grid)):
         if not v > 0:
             raise InputError(opt, f"must be > 0, got {v}")
+    if image is not None:
+        input_file(image, "image")
     b = load_bundle(bundle)
+    check_outputs(bundle, [("error map", error_map_png), ("overlay", overlay)], b, inputs=[points, image])
     cam = b.camera(camera)
     if field is not None:
         fm = load_field(field)
@@ -85,17 +89,22 @@ def field_pnp(
         names, uv = read_picks(points, fm.landmarks)
         picks_src = points
     elif image is not None:
-        if not has_display():
-            raise InputError("--image", "no display for the interactive picker (headless); click the landmarks elsewhere and pass --points picks.csv (name,u,v rows)")
-        img = read_image(image)
-        want = [s.strip() for s in landmarks.split(",")] if landmarks else DEFAULT_PICKS[side]
-        unknown = [n for n in want if n not in fm.landmarks]
-        if unknown:
-            raise InputError("--landmarks", f"unknown landmark(s) {', '.join(unknown)} (the field has: {', '.join(sorted(fm.landmarks))})")
-        names, uv = pick_landmarks(img, want, fm)
         picks_src = points or image.with_suffix(".picks.csv")
-        write_picks(picks_src, names, uv)
-        err_console.print(f"wrote {len(names)} picks to {picks_src}")
+        if not has_display():
+            if points is not None or not picks_src.is_file():
+                raise InputError("--image", "no usable display for the interactive picker (headless, or no GUI toolkit); click the landmarks elsewhere and pass --points picks.csv (name,u,v rows)")
+            err_console.print(f"no usable display for the picker: using the picks saved earlier in {picks_src}")
+            names, uv = read_picks(picks_src, fm.landmarks)
+        else:
+            img = read_image(image)
+            want = [s.strip() for s in landmarks.split(",")] if landmarks else DEFAULT_PICKS[side]
+            unknown = [n for n in want if n not in fm.landmarks]
+            if unknown:
+                raise InputError("--landmarks", f"unknown landmark(s) {', '.join(unknown)} (the field has: {', '.join(sorted(fm.landmarks))})")
+            check_outputs(bundle, [("picks file", picks_src)], b, inputs=[image])
+            names, uv = pick_landmarks(img, want, fm)
+            save_picks(picks_src, names, uv)
+            err_console.print(f"wrote {len(names)} picks to {picks_src}")
     elif points is not None:
         raise InputError(points, "picks file not found (expected name,u,v rows; or pass --image to click them)")
     else:
@@ -122,6 +131,24 @@ def field_pnp(
     em = error_map(cam, res.T_cam_field, res.cov_pose, fm, step=grid, pixel_sigma=pixel_sigma, range_sigma=range_sigma)
     em_print = em if grid >= 2.0 else error_map(cam, res.T_cam_field, res.cov_pose, fm, step=2.0, pixel_sigma=pixel_sigma, range_sigma=range_sigma)
 
+    # --- figures first (a failure leaves the bundle as it was), then the bundle -----------------------------------
+    if error_map_png is not None:
+        from radarcal.pnp.figures import save_error_map_png
+
+        try:
+            save_error_map_png(error_map_png, em, fm, res.camera_position, names, title=f"{camera} on {fm.name}: 1σ localisation error for {click_sigma:g} px clicks, {pixel_sigma:g} px detections")
+        except (ValueError, OSError) as e:  # matplotlib: unknown extension; the file system: full, vanished folder
+            raise InputError(error_map_png, f"cannot write the error map ({e})") from None
+
+    if overlay is not None:
+        import cv2
+
+        from radarcal.pnp.figures import draw_overlay
+
+        over = draw_overlay(read_image(image), cam, res.T_cam_field, fm, names, res.uv)
+        if not cv2.imwrite(str(overlay), over):
+            raise InputError(overlay, "cannot write the overlay image (unknown extension or unwritable folder)")
+
     # --- write the bundle ------------------------------------------------------------------------------------
     per_point = {n: float(np.linalg.norm(r)) for n, r in zip(names, res.residuals_px)}
     prov = Provenance(command=command_line(), inputs_sha256=hash_inputs([picks_src] + ([image] if image else []), extra={"field": fm.to_dict(), "click_sigma": click_sigma, "max_rms": max_rms, "ransac_px": ransac_px}))
@@ -147,21 +174,6 @@ def field_pnp(
         {"field": fm.name, "camera": camera, "click_sigma_px": click_sigma, "pixel_sigma_px": pixel_sigma, "range_sigma_m": range_sigma, "rms_px": res.rms_px, "depth_source": used, "lidar": lidar_name, "warnings": res.warnings, "picks_file": str(picks_src)},
     )
     save_bundle(b, bundle)
-    if error_map_png is not None:
-        from radarcal.pnp.figures import save_error_map_png
-
-        save_error_map_png(error_map_png, em, fm, res.camera_position, names, title=f"{camera} on {fm.name}: 1σ localisation error for {click_sigma:g} px clicks, {pixel_sigma:g} px detections")
-
-    if overlay is not None:
-        import cv2
-
-        from radarcal.pnp.figures import draw_overlay
-
-        over = draw_overlay(read_image(image), cam, res.T_cam_field, fm, names, res.uv)
-        overlay.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(overlay), over):
-            raise InputError(overlay, "cannot write the overlay image (unknown extension or unwritable folder)")
-
     # --- report ----------------------------------------------------------------------------------------------
     from radarcal import geometry
 

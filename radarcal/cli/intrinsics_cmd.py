@@ -89,6 +89,30 @@ def _where(files: list[Path]) -> Path | str:
     return files[0] if len(files) == 1 else files[0].parent
 
 
+def _check_sources(sources: list[str]) -> None:
+    """Every SOURCE exists (expand_sources), and a file named explicitly (not found in a folder or by a glob, where
+    unreadable frames are only rejected views) is a readable image or a video (InputError naming it)."""
+    from radarcal.intrinsics.collect import VIDEO_EXTS
+    from radarcal.io import read_image
+
+    expand_sources(sources)
+    for s in sources:
+        p = Path(s)
+        if p.is_file() and p.suffix.lower() not in VIDEO_EXTS:
+            read_image(p, grayscale=True)
+
+
+def _uncertainty_summary(unc) -> dict:
+    """What the projection-σ map says: the centre, median and 90th percentile (px), where it is within 2x the
+    centre's (what this data set can give), and where it is below the per-corner noise (``valid_fraction``)."""
+    sig = np.asarray(unc.sigma_px, float)
+    finite = sig[np.isfinite(sig)]
+    centre = unc.at_centre()
+    return {"centre_px": centre, "median_px": float(np.median(finite)) if finite.size else float("nan"), "p90_px": float(np.percentile(finite, 90)) if finite.size else float("nan"),
+            "within_2x_centre_fraction": float(np.mean(np.isfinite(sig) & (sig <= 2 * centre))), "valid_fraction": unc.valid_fraction, "threshold_px": unc.threshold_px,
+            "valid_means": "projection σ below the per-corner noise σ (threshold_px)"}
+
+
 def _summary(name: str, res: IntrinsicsResult, layout_info: dict) -> dict:
     cal = res.calibration
     cam = cal.camera
@@ -106,7 +130,7 @@ def _summary(name: str, res: IntrinsicsResult, layout_info: dict) -> dict:
         "corners_dropped": cal.dropped_corners,
         "rejected": {n: st for n, st in zip(res.names, res.status) if st != "used"},
         "coverage": {**{k: round(v, 3) for k, v in res.coverage.progress.items()}, "image_grid": round(res.coverage.grid_fraction, 3)},
-        "uncertainty": {"centre_px": res.uncertainty.at_centre(), "median_px": float(np.nanmedian(res.uncertainty.sigma_px)), "valid_fraction": res.uncertainty.valid_fraction, "threshold_px": res.uncertainty.threshold_px},
+        "uncertainty": _uncertainty_summary(res.uncertainty),
         "crossval": res.crossval.summary() if res.crossval else None,
         "model_choice": {"model": res.model_choice.model, "reason": res.model_choice.reason, "table": res.model_choice.table} if res.model_choice else None,
         "warnings": res.warnings,
@@ -173,7 +197,8 @@ def _human_camera(s: dict) -> None:
         typer.echo(f"    rejected {n}: {why}")
     typer.echo("  coverage: " + "  ".join(f"{k} [{_bar(s['coverage'][k], 10)}] {s['coverage'][k]:.2f}" for k in DESCRIPTOR_NAMES) + f"  image {s['coverage']['image_grid']:.0%}")
     u = s["uncertainty"]
-    typer.echo(f"  projection σ: {u['centre_px']:.3f} px at the centre, median {u['median_px']:.3f} px; valid (σ < {u['threshold_px']:.3f} px) over {u['valid_fraction']:.0%} of the image")
+    typer.echo(f"  projection σ (a far point, worst direction): {u['centre_px']:.3f} px at the centre, median {u['median_px']:.3f} px, 90 % of the image below {u['p90_px']:.3f} px; "
+               f"within 2x the centre's σ over {u['within_2x_centre_fraction']:.0%} of the image, below the corner noise ({u['threshold_px']:.3f} px) over {u['valid_fraction']:.0%}")
     if s.get("charuco_layout"):
         c = s["charuco_layout"]
         typer.echo(f"  ChArUco layout: {'legacy (pre-4.6)' if c['legacy'] else 'new (OpenCV >= 4.6)'} (corners found: new {c['corners_new_layout']}, legacy {c['corners_legacy_layout']})")
@@ -243,6 +268,7 @@ def intrinsics(
     novelty: float = typer.Option(0.0, "--novelty", help="ROS novelty gate for still images (L1 in X/Y/Size/Skew; 0 = keep all). Videos always use 0.2."),
     no_crossval: bool = typer.Option(False, "--no-crossval", help="Skip the split-halves cross-validation."),
     k_sigma: float = typer.Option(4.0, "--k-sigma", help="Corner outlier threshold in σ."),
+    force: bool = typer.Option(False, "--force", help="Store the intrinsics even when the cross-validation says INCONSISTENT (flagged in the bundle)."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Calibrate camera intrinsics from chessboard / ChArUco views (and T_cam1_cam0 with --right)."""
@@ -262,6 +288,7 @@ def intrinsics(
     if corners is not None and (right or image_size is None):
         raise InputError("--corners", "needs --image-size WxH (the corner file does not record it) and takes no --right")
     b = load_or_create_bundle(bundle)  # fail early on a broken bundle
+    _check_sources([*(sources or []), *(right or [])])  # and on a source that cannot be read, before any detection
 
     if corners is not None:
         views0, spec0, layout0, files0 = views_from_corner_file(corners, spec, parse_image_size(image_size)), spec, {}, [corners]
@@ -276,7 +303,10 @@ def intrinsics(
         results.append((right_camera, res1, layout1, files1))
         st, pair_names = _stereo(res0, res1, spec0, not fix_intrinsics)
 
-    summary = {"bundle": str(bundle), "cameras": []}
+    refusals = [f"{name}: cross-validation INCONSISTENT (halves differ {res.crossval.diff_median_px:.2f} px vs σ {res.crossval.sigma_median_px:.2f} px)"
+                for name, res, _, _ in results if res.crossval is not None and not res.crossval.consistent]
+    store = force or not refusals
+    summary = {"bundle": str(bundle), "cameras": [], "stored": store, "refused": refusals}
     all_files = [f for _, _, _, fs in results for f in fs]
     prov = Provenance(command=command_line(), inputs_sha256=hash_inputs(all_files, {"board": spec.__dict__, "model": model, "k_sigma": k_sigma}))
     for idx, (name, res, lay, _files) in enumerate(results):
@@ -302,9 +332,14 @@ def intrinsics(
             extra["refined_by"] = s["refined_by"]
             extra["mono_rms_px"] = res.calibration.rms_px
         summary["cameras"].append(s)
+        if not store:
+            continue
+        forced = [r for r in refusals if r.startswith(f"{name}: ")]
+        if forced:
+            extra["forced"] = [r.split(": ", 1)[1] for r in forced]  # `bundle validate`, the report and `run` show it
         b.set_camera(name, cam, rms_px=rms, sigma=sigma, provenance=prov, extra=extra)
         save_session(b, f"intrinsics/{name}", _session_arrays(res), {"camera": name, "summary": s, "board": res.board.__dict__})
-    if st is not None:
+    if st is not None and store:
         b.set_transform(right_camera, camera, st.T_cam1_cam0, method="intrinsics --right (board pairs, " + ("mono intrinsics fixed)" if fix_intrinsics else "jointly with both cameras' intrinsics)"), residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)
         save_session(
             b,
@@ -322,7 +357,8 @@ def intrinsics(
             {"camera0": camera, "camera1": right_camera},
         )
         summary["stereo"] = {"T": f"T_{right_camera}_{camera}", "T_cam1_cam0": st.T_cam1_cam0, "baseline_m": st.baseline_m, "sigma": st.sigma, "rms_px": st.rms_px, "pairs": st.n_pairs}
-    save_bundle(b)
+    if store:
+        save_bundle(b)
 
     def human(s: dict) -> None:
         for c in s["cameras"]:
@@ -331,6 +367,11 @@ def intrinsics(
             x = s["stereo"]
             t = np.asarray(x["T_cam1_cam0"])[:3, 3]
             typer.echo(f"stereo {x['T']}: baseline {x['baseline_m'] * 1000:.3f} ± {x['sigma']['baseline_m'] * 1000:.3f} mm  t = ({t[0]:.5f}, {t[1]:.5f}, {t[2]:.5f}) m  RMS {x['rms_px']:.3f} px over {x['pairs']} pairs")
-        typer.echo(f"written to {s['bundle']}")
+        if s["stored"]:
+            typer.echo(f"written to {s['bundle']}" + (" (flagged: stored with --force)" if s["refused"] else ""))
+        else:
+            typer.echo(f"NOT stored ({'; '.join(s['refused'])}; --force to store anyway)")
 
     emit(summary, as_json, human)
+    if not store:
+        raise typer.Exit(1)

@@ -11,6 +11,7 @@ import typer
 from radarcal import geometry
 from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.outputs import check_outputs
 from radarcal.errors import InputError
 from radarcal.readout import camera_in_lidar, format_camera_in_lidar
 
@@ -52,7 +53,8 @@ def lidar_camera(
     trans_prior: float = typer.Option(0.3, "--trans-prior", help="Sigma (m) of a prior holding the translation near the initial guess during --refine (0: none)."),
     rotation_only: bool = typer.Option(False, "--rotation-only", help="Refine the rotation only (translation measured elsewhere)."),
     overlay: Path = typer.Option(None, "--overlay", help="Write the first cloud over the first image, before | after (PNG)."),
-    force: bool = typer.Option(False, "--force", help="Store the result even when the refinement did not converge."),
+    max_pnp_rms: float = typer.Option(3.0, "--max-pnp-rms", help="Refuse a corners/boards pose whose reprojection RMS over the kept correspondences exceeds this (px)."),
+    force: bool = typer.Option(False, "--force", help="Store the result even when the refinement did not converge or the PnP residuals say it is wrong."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Calibrate T_cam_lidar: manual corners / boards (PnP) and/or targetless edge refinement."""
@@ -73,6 +75,7 @@ def lidar_camera(
     board_size = _pair_list(board, 2, "--board")
     squares = _pair_list(board_squares, 2, "--board-squares")
     b = load_or_create_bundle(bundle)
+    check_outputs(bundle, [("overlay", overlay)], b, inputs=[*images, *clouds, init, corners, board_uv])
     cam = b.camera(camera)
     imgs = [read_image(p) for p in images]
     for p, im in zip(images, imgs):
@@ -96,13 +99,16 @@ def lidar_camera(
     residual: dict = {}
     sigma: dict = {}
     arrays: dict = {"T_init": T0}
+    refusals: list[str] = []  # what the tool's own checks say is wrong with the result (not stored without --force)
 
     # ---- manual: picks and/or boards
-    P_all, U_all = [], []
+    P_all, U_all, G_all = [], [], []  # groups: rows that stand or fall together (one board's 4 corners)
     if corners is not None:
         p, uv, view = read_corners_csv(corners)
         P_all.append(p)
         U_all.append(uv)
+        G_all.append(-1 - np.arange(len(p)))  # a clicked pick stands alone
+    n_boards = 0
     if board_size is not None:
         uv_click, uv_view = (read_uv_csv(board_uv) if board_uv else (None, None))
         for k, (im, c) in enumerate(zip(imgs, clds)):
@@ -124,17 +130,25 @@ def lidar_camera(
             summary["warnings"] += [f"view {k}: {x}" for x in w]
             P_all.append(Pb)
             U_all.append(Ub)
+            G_all.append(n_boards + np.arange(len(Pb)) // 4)
+            n_boards += len(Pb) // 4
     if P_all:
-        P, U = np.vstack(P_all), np.vstack(U_all)
+        P, U, G = np.vstack(P_all), np.vstack(U_all), np.concatenate(G_all)
         if len(P) < 4:
             raise InputError(corners or "--board", f"need at least 4 correspondences, got {len(P)}")
-        sol = lc.solve_corners(cam, P, U)
+        try:
+            sol = lc.solve_corners(cam, P, U, groups=G, max_rms_px=max_pnp_rms)
+        except ValueError as e:
+            raise InputError(corners or "--board", str(e)) from None
+        if not sol.ok:
+            refusals.append(f"PnP: {sol.verdict}")
         T = sol.T_cam_lidar
         method.append(sol.method)
         summary["warnings"] += sol.warnings
         residual.update({"pnp_rms_px": sol.rms_px, "pnp_n_used": sol.n_used, "pnp_n_flagged": int(sol.outliers.sum())})
         sigma.update({"pnp_rot_deg": np.degrees(sol.sigma[:3]).tolist(), "pnp_trans_m": sol.sigma[3:].tolist()})
-        summary["pnp"] = {"rms_px": sol.rms_px, "residuals_px": sol.residuals_px, "flagged_rows": np.flatnonzero(sol.outliers), "sigma_rot_deg": np.degrees(sol.sigma[:3]), "sigma_trans_m": sol.sigma[3:]}
+        summary["pnp"] = {"rms_px": sol.rms_px, "residuals_px": sol.residuals_px, "flagged_rows": np.flatnonzero(sol.outliers), "sigma_rot_deg": np.degrees(sol.sigma[:3]), "sigma_trans_m": sol.sigma[3:],
+                          "ok": sol.ok, "verdict": sol.verdict}
         arrays.update({"pnp_p_lidar": P, "pnp_uv": U, "pnp_residuals_uv": sol.residuals_uv, "pnp_flagged": sol.outliers, "T_pnp": T})
 
     # ---- targetless refinement
@@ -211,10 +225,19 @@ def lidar_camera(
         pts = clds[0].points
         pts = pts[np.linalg.norm(pts, axis=1) < max_range]
         img = side_by_side(overlay_cloud(imgs[0], cam, T0, pts, label="before"), overlay_cloud(imgs[0], cam, T, pts, label="after"))
-        if not cv2.imwrite(str(overlay), img):
-            raise InputError(overlay, "cannot write the overlay image")
+        try:
+            written = cv2.imwrite(str(overlay), img)
+        except cv2.error:  # no writer for the extension
+            written = False
+        if not written:
+            raise InputError(overlay, "cannot write the overlay image (unknown image extension?)")
         summary["overlay"] = str(overlay)
-    if converged or force:
+    if not converged:
+        refusals.append("the refinement did not converge")
+    summary["refused"] = refusals
+    if refusals and force:
+        residual["forced"] = list(refusals)  # `bundle validate`, the report and `run` show it
+    if not refusals or force:
         inputs = [*images, *clouds] + [p for p in (init, corners, board_uv) if p is not None]
         arrays["T_final"] = T
         b.set_transform(camera, lidar, T, method=" + ".join(method), residual=residual, sigma=sigma,
@@ -255,10 +278,10 @@ def lidar_camera(
             typer.echo(f"  warning: {w}")
         if s.get("overlay"):
             typer.echo(f"  overlay: {s['overlay']}")
-        typer.echo(f"  {'stored in ' + str(bundle) if s['stored'] else 'NOT stored (did not converge; --force to store anyway)'}  ({s['seconds']:.1f} s)")
+        typer.echo(f"  {'stored in ' + str(bundle) if s['stored'] else 'NOT stored (' + '; '.join(s['refused']) + '; --force to store anyway)'}  ({s['seconds']:.1f} s)")
 
     emit(summary, as_json, human)
-    if not (converged or force):
+    if refusals and not force:
         raise typer.Exit(1)
 
 

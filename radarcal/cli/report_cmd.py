@@ -9,7 +9,24 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import JsonOpt, emit, err_console
+from radarcal.cli.outputs import check_outputs, input_file
 from radarcal.errors import InputError
+
+
+def _check_tracks(path: Path, what: str) -> None:
+    """A track file the report can draw: JSON lines with robot positions, all finite (InputError naming it)."""
+    import numpy as np
+
+    from radarcal.errors import read_text
+    from radarcal.report.build import read_tracks
+
+    input_file(path, what)
+    read_text(path, what)  # undecodable bytes -> one line naming the file
+    _t, xyz = read_tracks(path)
+    if not xyz:
+        raise InputError(path, f"no robot positions in the {what} (expected JSON lines {{\"t\", \"robots\": [{{\"label\", \"x\", \"y\"}}]}} as written by radarcal run --out)")
+    if not all(np.all(np.isfinite(p)) for p in xyz.values()) or not all(np.all(np.isfinite(t)) for t in _t.values()):
+        raise InputError(path, f"non-finite time or position in the {what}")
 
 
 def report(
@@ -26,16 +43,15 @@ def report(
     from radarcal.bundle import load_bundle
     from radarcal.report.build import build_report
     from radarcal.report.html import render_html
+    from radarcal.verdicts import forced_entries
 
     b = load_bundle(bundle)
-    if tracks is not None and not tracks.is_file():
-        raise InputError(tracks, "track file not found")
-    if truth is not None and not truth.is_file():
-        raise InputError(truth, "truth track file not found")
-    if output.exists() and output.is_dir():
-        raise InputError(output, "is a directory; give an .html file name")
-    if not output.parent.exists():
-        raise InputError(output, f"folder {output.parent} does not exist")
+    for path, what in ((tracks, "track file"), (truth, "truth track file")):
+        if path is not None:
+            _check_tracks(path, what)
+    if session is not None and not session.is_dir():
+        raise InputError(session, "session folder not found" if not session.exists() else "is not a folder (give the folder of session .npz files)")
+    check_outputs(bundle, [("report", output)], b, inputs=[tracks, truth])
     err_console.print(f"[dim]building report from {bundle} ({len(b.sessions)} session file(s))…[/dim]")
     content = build_report(b, session, tracks, truth)
     html = render_html(title or f"radarcal report: {bundle.name}", content.sections, subtitle=str(bundle.resolve()), dpi=dpi)
@@ -48,6 +64,7 @@ def report(
         "sections": [s.title for s in content.sections],
         "figures": content.n_figures,
         "skipped": content.skipped,
+        "warnings": forced_entries(b),
     }
 
     def human(s: dict) -> None:
@@ -56,5 +73,7 @@ def report(
             typer.echo(f"  - {t}")
         for k in s["skipped"]:
             typer.echo(f"  skipped: {k}")
+        for w in s["warnings"]:
+            typer.echo(f"  warning: {w}")
 
     emit(summary, as_json, human)

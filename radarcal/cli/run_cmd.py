@@ -7,6 +7,8 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.outputs import check_outputs
+from radarcal.cli.run_checks import HERO_MAX_SPREAD_M, check_serial_port, check_season, hero_spread_problem, run_warnings
 from radarcal.errors import InputError
 
 __all__ = ["run", "hero_offset", "compute_hero_offset"]
@@ -67,6 +69,15 @@ def run(
         if len(sxy) != 2:
             raise InputError("--sentry-xy", f"expected X,Y in metres, got {sentry_xy!r}")
     cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy)
+    check_season(cfg.season, "--season" if season is not None else f"{bundle}: runtime.referee_season")
+    check_outputs(bundle, [("track file", out), ("minimap", minimap)], b, inputs=[detections, rep.detections if rep else None, rep.truth if rep else None])
+    if serial:
+        check_serial_port(serial)
+    from radarcal.verdicts import forced_entries
+
+    warnings = run_warnings(has_clouds, no_lidar, replay is not None) + [f"bundle {w}" for w in forced_entries(b)]
+    for w in warnings:
+        err_console.print(f"warning: {w}", style="yellow")
     pipe = Pipeline(b, cam_name, lidar_name if has_clouds else None, cfg)
 
     if detector is not None:
@@ -112,6 +123,9 @@ def run(
                     "minimap": str(minimap) if minimap else None, "team": cfg.team, "season": cfg.season})  # fmt: skip
     if link is not None:
         summary["serial"] = {"port": serial, **link.snapshot(), "disconnects": link.stats.disconnects, "last_error": link.stats.last_error}
+        if not link.stats.connects:
+            warnings.append(f"referee link {serial} never connected ({link.stats.last_error or 'no reply'}): nothing was sent")
+    summary["warnings"] = warnings
 
     def human(s: dict) -> None:
         typer.echo(f"{s['frames']} frames in {s['wall_s']:.1f} s ({s['fps']:.1f} FPS), {s['clouds']} clouds; camera {s['camera']}, lidar {s['lidar'] or '-'}")
@@ -128,6 +142,11 @@ def run(
             typer.echo(f"  tracks -> {s['out']}")
         if s.get("minimap"):
             typer.echo(f"  minimap -> {s['minimap']}")
+        if s.get("serial"):
+            q = s["serial"]
+            typer.echo(f"  referee link {q['port']}: {q.get('sent', 0)} frames sent, {q['disconnects']} disconnects{', last error ' + q['last_error'] if q['last_error'] else ''}")
+        for w in s["warnings"]:
+            typer.echo(f"  warning: {w}")
 
     emit(summary, as_json, human)
 
@@ -144,6 +163,8 @@ def hero_offset(
     replay: Path = typer.Option(None, "--replay", help="Instead of --measured: a short recording (replay folder) with our hero standing at a known point."),
     marker: str = typer.Option(None, "--marker", help="With --replay, instead of --actual: the field landmark the hero stands at."),
     team: str = typer.Option(None, "--team", help="Our colour red|blue (default: bundle runtime.team)."),
+    max_spread: float = typer.Option(HERO_MAX_SPREAD_M, "--max-spread", help="With --replay: refuse when the hero range spreads more than this (m, 10-90 %) over the recording."),
+    force: bool = typer.Option(False, "--force", help="Store the offset even when the recording's hero range spread says the hero moved."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Store the per-match hero range offset (actual - measured) in the bundle (runtime.hero_range_offset_m)."""
@@ -159,6 +180,8 @@ def hero_offset(
         raise InputError("radarcal hero-offset", "give exactly one of --actual A or --marker LANDMARK")
     if marker is not None and replay is None:
         raise InputError("--marker", "needs --replay (a recording with the hero at the marker)")
+    if not max_spread > 0:
+        raise InputError("--max-spread", f"must be > 0 m, got {max_spread}")
     b = load_bundle(bundle)
     team = team or str(b.runtime.get("team", "red"))
     if team not in ("red", "blue"):
@@ -180,9 +203,18 @@ def hero_offset(
     for name, v in (("--measured", measured), ("--actual", actual)):
         if not math.isfinite(v) or v <= 0 or v > 60:
             raise InputError(name, f"expected a distance in metres (0..60], got {v}")
+    problem = hero_spread_problem(extra["measured_spread_m"], max_spread) if replay is not None else None
+    if problem and not force:
+        raise InputError(replay, f"{problem}; nothing stored (--force to store it anyway)")
+    if problem:
+        extra["warnings"] = [problem]
+        err_console.print(f"warning: {problem} (stored because of --force)", style="yellow")
     old = float(b.runtime.get("hero_range_offset_m", 0.0))
     off = compute_hero_offset(measured, actual)
     b.runtime["hero_range_offset_m"] = off
+    b.runtime.pop("hero_range_offset_forced", None)
+    if problem:
+        b.runtime["hero_range_offset_forced"] = problem
     b.runtime["hero_range_offset_note"] = f"{command_line()}"
     save_bundle(b, bundle)
     emit({"bundle": str(bundle), "hero_range_offset_m": off, "previous_m": old, "measured_m": measured, "actual_m": actual, **extra}, as_json,
@@ -213,5 +245,3 @@ def _hero_range_from_recording(b, replay: Path, team: str) -> tuple[float, dict]
     r = np.asarray(ranges)
     return float(np.median(r)), {"frames_with_hero": len(r), "measured_spread_m": float(np.percentile(r, 90) - np.percentile(r, 10))}
 
-
-_ = err_console  # stderr console kept for symmetry with other commands

@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import JsonOpt, command_line, emit, progress
+from radarcal.cli.outputs import check_output
 from radarcal.errors import InputError
 
 _MODELS = ("pinhole5", "pinhole8", "fisheye")
@@ -88,6 +89,7 @@ def synth_board(
         spec = BoardSpec(board, cols, rows, square, marker if charuco else None, dictionary, legacy if charuco else None)
     except ValueError as e:
         raise InputError("--board", str(e)) from None
+    check_output(out_dir, what="image folder", folder=True)
     settings = RenderSettings(supersample=supersample, blur_sigma=blur, noise_sigma=noise, vignetting=vignetting, fisheye_fov_deg=fov)
 
     if video < 0 or video > 600 or not (1 <= fps <= 120):

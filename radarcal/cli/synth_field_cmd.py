@@ -7,9 +7,13 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import JsonOpt, command_line, emit, progress
+from radarcal.cli.outputs import replace_folder
 from radarcal.errors import InputError
 
 __all__ = ["synth_field"]
+
+# what a replay folder holds (an --overwrite never removes a folder holding anything else)
+REPLAY_ENTRIES = ("images", "clouds", "detections.jsonl", "truth.jsonl", "truth.json", "meta.json", "calib.yaml", "calib.sessions", "calib.yaml.*.bak")
 
 
 def _parse_gap(text: str | None) -> tuple[float, float] | None:
@@ -38,6 +42,7 @@ def synth_field(
     image_every: int = typer.Option(1, "--image-every", help="Write an image for every k-th frame only (smaller replay; detections/truth stay per frame)."),
     det_jitter: float = typer.Option(0.0, "--det-jitter", help="σ (px) of jitter on detection box edges."),
     det_dropout: float = typer.Option(0.0, "--det-dropout", help="Probability of a missed detection per robot and frame."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace OUT when it holds an earlier (or interrupted) replay."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Generate a RoboMaster field replay: images, LiDAR clouds, detections, truth, calib.yaml."""
@@ -65,7 +70,9 @@ def synth_field(
         if req not in fm.landmarks:
             raise InputError(field, f"field model lacks the landmark {req!r} (needed by radarcal run)")
     cfg = FieldSceneConfig(frames=frames, seed=seed, robots=robots, station=station, lidar_gap=_parse_gap(lidar_gap), lidar_points=lidar_points, image_scale=image_scale, jpeg_quality=jpeg_quality, image_every=image_every, det_jitter_px=det_jitter, det_dropout=det_dropout)
-    summary = write_field_replay(out, fm, cfg, generator=command_line(), progress=lambda it, description="": progress(it, description, enabled=not as_json))
+    with replace_folder(out, overwrite, REPLAY_ENTRIES, "replay") as tmp:
+        summary = write_field_replay(tmp, fm, cfg, generator=command_line(), progress=lambda it, description="": progress(it, description, enabled=not as_json))
+    summary["out"] = str(out)
 
     def human(s: dict) -> None:
         typer.echo(f"wrote {s['out']}: {s['frames']} frames ({s['images']} images), {s['clouds']} clouds ({s['cloud_points']} points), {s['robots']} robots, "

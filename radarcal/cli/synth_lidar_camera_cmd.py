@@ -9,6 +9,7 @@ import typer
 
 from radarcal import geometry
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.outputs import check_output
 from radarcal.errors import InputError
 
 __all__ = ["synth_lidar_camera"]
@@ -35,6 +36,7 @@ def synth_lidar_camera(
         raise InputError("--lidar", f"expected 'rosette' or 'spinning', got {lidar!r}")
     if duration <= 0 or rate <= 0:
         raise InputError("--duration/--rate", "must be positive")
+    check_output(out, what="scene folder", folder=True)
     t0 = time.perf_counter()
     with err_console.status("ray-casting the scene"):
         scene = render_lidar_camera_scene(LidarCameraSceneParams(seed=seed, lidar=lidar, duration_s=duration, point_rate=rate, beams=beams, range_noise_m=range_noise,

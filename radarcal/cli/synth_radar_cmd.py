@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import JsonOpt, emit
+from radarcal.cli.outputs import check_output
 from radarcal.errors import InputError
 
 
@@ -39,6 +40,7 @@ def synth_radar(
         raise InputError("--extra-lidars", "expected 0, 1 or 2")
     if scenes < 1 or reflectors < 2 or frames < 1:
         raise InputError("--scenes/--reflectors/--frames", "need >= 1 scene, >= 2 reflectors, >= 1 frame")
+    check_output(out, what="session folder", folder=True)
     radars = _default_radars()
     radars = {n: (x, y, h, yaw) for (n, (x, y, _, yaw)), h in zip(radars.items(), hs)}
     extra = dict(list(_default_extra_lidars().items())[:extra_lidars])

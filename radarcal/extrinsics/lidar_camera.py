@@ -48,6 +48,8 @@ class CornerSolution:
     method: str
     n_used: int
     warnings: list[str] = field(default_factory=list)
+    ok: bool = True  # False: the residuals say the pose is wrong (see ``verdict``); not stored without --force
+    verdict: str = "ok"
 
 
 @dataclass
@@ -105,37 +107,93 @@ def _initial_pnp(cam: Camera, p: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray
     return geometry.T_from_rotvec(rvec.ravel(), tvec.ravel()), method
 
 
-def solve_corners(camera: Camera, p_lidar: np.ndarray, uv: np.ndarray, outlier_sigma: float = 3.0, T_init: np.ndarray | None = None) -> CornerSolution:
-    """``T_cam_lidar`` from >= 4 LiDAR-point / pixel correspondences (several boards or views stacked)."""
+def _left_delta(T: np.ndarray, T_ref: np.ndarray) -> np.ndarray:
+    """(rx ry rz, tx ty tz) of ``T @ inv(T_ref)``: the camera-frame perturbation the sigmas are expressed in."""
+    d = T @ geometry.invert_T(T_ref)
+    return np.r_[geometry.R_to_rotvec(d[:3, :3]), d[:3, 3]]
+
+
+def _check_geometry(p: np.ndarray, uv: np.ndarray) -> None:
+    """Correspondences that cannot give a pose: duplicated rows, collinear points or pixels (ValueError)."""
+    n_p, n_uv = len(np.unique(np.round(p, 6), axis=0)), len(np.unique(np.round(uv, 3), axis=0))
+    if min(n_p, n_uv) < 4:
+        raise ValueError(f"only {min(n_p, n_uv)} different {'points' if n_p < n_uv else 'pixels'} among {len(p)} rows (duplicated rows): a pose needs >= 4")
+    for what, a in (("LiDAR points", p), ("pixels", uv)):
+        sv = np.linalg.svd(a - a.mean(0), compute_uv=False)
+        if sv[0] <= 0 or sv[1] < 1e-6 * sv[0]:
+            raise ValueError(f"the {what} are collinear: a pose needs points spread over a plane or a volume")
+
+
+def solve_corners(camera: Camera, p_lidar: np.ndarray, uv: np.ndarray, outlier_sigma: float = 3.0, T_init: np.ndarray | None = None,
+                  groups: np.ndarray | None = None, max_rms_px: float = 3.0) -> CornerSolution:
+    """``T_cam_lidar`` from >= 4 LiDAR-point / pixel correspondences (several boards or views stacked).
+
+    ``groups`` (N,) labels rows that stand or fall together (the 4 corners of one board): a group with any row
+    beyond ``outlier_sigma`` robust sigmas is excluded as a whole (one wrong image corner means the board's
+    pairing or detection is wrong, so its other corners are not trusted either), and the solve is repeated until
+    the set is stable. With >= 3 groups kept, sigma is the larger of the Jacobian's and a leave-one-group-out
+    jackknife's (board-level errors, e.g. a cloud rectangle fitted off by a centimetre, do not shrink with the
+    number of corners). ``ok`` is False when the residuals say the pose is wrong: inlier RMS above ``max_rms_px``
+    or more than half the rows excluded (``verdict`` says which)."""
     p = np.asarray(p_lidar, float).reshape(-1, 3)
     uv = np.asarray(uv, float).reshape(-1, 2)
     if len(p) != len(uv) or len(p) < 4:
         raise ValueError(f"need >= 4 correspondences with matching counts, got {len(p)} points and {len(uv)} pixels")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(uv))):
+        raise ValueError("non-finite coordinates")
+    _check_geometry(p, uv)
+    g = np.arange(len(p)) if groups is None else np.asarray(groups).reshape(-1)
+    if len(g) != len(p):
+        raise ValueError(f"groups has {len(g)} labels for {len(p)} correspondences")
     warnings: list[str] = []
     if T_init is None:
         T0, method = _initial_pnp(camera, p, uv)
     else:
         T0, method = np.asarray(T_init, float), "init"
     T, res = _refine_lm(camera, T0, p, uv)
-    r = res.fun.reshape(-1, 2)
-    rn = np.linalg.norm(r, axis=1)
+    rn = np.linalg.norm(res.fun.reshape(-1, 2), axis=1)
     out = np.zeros(len(p), bool)
     if len(p) >= 8:
-        # robust scale of the per-point error (2-D: the norm of a N(0, s^2 I) vector has median ~1.18 s)
-        s = max(np.median(rn) / 1.1774, 0.05)
-        out = rn > outlier_sigma * s
-        if out.any() and (~out).sum() >= 6:
+        for it in range(5):
+            # per-axis pixel sigma: first robustly from all rows (the norm of a N(0, s^2 I) 2-vector has median
+            # ~1.18 s), then from the kept rows' squared residuals with the 6 fitted parameters' dof removed
+            # (the median of a fitted set's residuals underestimates s and would peel off good rows one by one)
+            kept_r = rn[~out]
+            s = np.median(rn) / 1.1774 if it == 0 else np.sqrt(np.sum(kept_r**2) / max(2 * len(kept_r) - 6, 1))
+            s = max(s, 0.05)
+            bad_rows = rn > outlier_sigma * s
+            new = np.isin(g, np.unique(g[bad_rows]))  # a group goes with any of its rows
+            if (~new).sum() < 6 or np.array_equal(new, out):
+                break
+            out = new
             T, res = _refine_lm(camera, T, p[~out], uv[~out])
-            r_all = _residuals(np.zeros(6), T, camera, p, uv).reshape(-1, 2)
-            r, rn = r_all, np.linalg.norm(r_all, axis=1)
-            warnings.append(f"{int(out.sum())} pick(s) beyond {outlier_sigma:g} sigma excluded: rows {np.flatnonzero(out).tolist()}")
-        else:
-            out[:] = False
+            rn = np.linalg.norm(_residuals(np.zeros(6), T, camera, p, uv).reshape(-1, 2), axis=1)
+        if out.any():
+            what = f"{len(np.unique(g[out]))} board(s) (rows {np.flatnonzero(out).tolist()})" if groups is not None else f"{int(out.sum())} pick(s): rows {np.flatnonzero(out).tolist()}"
+            warnings.append(f"{what} beyond {outlier_sigma:g} sigma excluded")
     sigma, _ = pose_sigma(res.jac, res.fun)
+    kept = np.unique(g[~out])
+    if groups is not None and len(kept) >= 3 and len(kept) < (~out).sum():
+        deltas = []
+        for k in kept:
+            m = ~out & (g != k)
+            Tk, _ = _refine_lm(camera, T, p[m], uv[m])
+            deltas.append(_left_delta(Tk, T))
+        d = np.array(deltas)
+        n = len(d)
+        jack = np.sqrt((n - 1) / n * np.sum((d - d.mean(0)) ** 2, axis=0))
+        if np.any(jack > sigma):
+            warnings.append(f"sigma from the spread between boards (leave-one-board-out, {n} boards): larger than the pixel-noise sigma")
+        sigma = np.maximum(sigma, jack)
     rms = float(np.sqrt(np.mean(rn[~out] ** 2)))
     if len(p) - out.sum() < 6:
         warnings.append("fewer than 6 correspondences: the pose is barely constrained, add boards/views")
-    return CornerSolution(T, rn, r, out, rms, sigma, f"pnp-{method}+lm", int((~out).sum()), warnings)
+    verdict = "ok"
+    if out.mean() > 0.5:
+        verdict = f"{int(out.sum())} of {len(p)} correspondences disagree with the pose: the pairing is wrong"
+    elif rms > max_rms_px:
+        verdict = f"reprojection RMS {rms:.2f} px over the kept correspondences exceeds {max_rms_px:g} px: the correspondences do not fit one pose"
+    return CornerSolution(T, rn, _residuals(np.zeros(6), T, camera, p, uv).reshape(-1, 2), out, rms, sigma, f"pnp-{method}+lm", int((~out).sum()), warnings, verdict == "ok", verdict)
 
 
 # ------------------------------------------------------------------------------------------------------------------

@@ -48,6 +48,8 @@ def _opencv_model(dist_model: str, path: Path) -> str:
 
 def _camera(path: Path, size, K, dist, model) -> Camera:
     try:
+        if not (np.all(np.isfinite(np.asarray(K, float))) and np.all(np.isfinite(np.asarray(dist, float)))):
+            raise ValueError("non-finite value in the camera matrix or the distortion coefficients")
         return Camera(tuple(int(v) for v in size), np.asarray(K, float).reshape(3, 3), np.asarray(dist, float).ravel(), model)
     except (ValueError, TypeError) as e:
         raise InputError(path, str(e)) from None

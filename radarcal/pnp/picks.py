@@ -10,7 +10,7 @@ import numpy as np
 
 from radarcal.errors import InputError
 
-__all__ = ["read_picks", "write_picks", "has_display", "pick_landmarks", "DEFAULT_PICKS"]
+__all__ = ["read_picks", "write_picks", "save_picks", "has_display", "pick_landmarks", "DEFAULT_PICKS"]
 
 # Four landmarks per side that spread over the image of a station at its own end, at different depths and heights
 # (not coplanar, so the 4-point pose is unique): see docs/field.md.
@@ -60,19 +60,65 @@ def read_picks(path: str | os.PathLike, known: dict | None = None) -> tuple[list
 
 
 def write_picks(path: str | os.PathLike, names: list[str], uv: np.ndarray) -> None:
+    """Write ``name,u,v`` rows (atomically: a crash leaves the previous file)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text("name,u,v\n" + "".join(f"{n},{u:.3f},{v:.3f}\n" for n, (u, v) in zip(names, np.asarray(uv, float))))
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text("name,u,v\n" + "".join(f"{n},{u:.3f},{v:.3f}\n" for n, (u, v) in zip(names, np.asarray(uv, float))))
+        os.replace(tmp, path)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise InputError(path, f"cannot write the picks ({e.strerror or e.__class__.__name__})") from None
+
+
+def save_picks(path: str | os.PathLike, names: list[str], uv: np.ndarray, min_picks: int = 4) -> None:
+    """Write what the picker returned, but never fewer than ``min_picks`` picks and never fewer than an existing
+    picks file holds (a closed or blank picker window must not erase earlier clicks)."""
+    path = Path(path)
+    if len(names) < min_picks:
+        raise InputError(path, f"the picker returned {len(names)} pick(s), {min_picks} are needed: nothing written" + (" (the existing file is kept)" if path.exists() else ""))
+    if path.is_file():
+        try:
+            old, _ = read_picks(path)
+        except InputError:
+            old = []
+        if len(names) < len(old):
+            raise InputError(path, f"the picker returned {len(names)} picks but the file holds {len(old)}: not overwritten (pass --points NEW.csv to keep both)")
+    write_picks(path, names, uv)
+
+
+def _interactive_backends() -> set[str]:
+    try:
+        from matplotlib.backends import BackendFilter, backend_registry
+
+        names = set(backend_registry.list_builtin(BackendFilter.INTERACTIVE))
+    except ImportError:  # matplotlib < 3.9
+        from matplotlib import rcsetup
+
+        names = {b.lower() for b in rcsetup.interactive_bk}
+    return names - {"nbagg", "notebook", "webagg"}  # these need a browser / notebook, not a window
 
 
 def has_display() -> bool:
-    """True when an interactive matplotlib window can open (a display and a non-Agg backend)."""
+    """True when an interactive matplotlib window can really open: a display that accepts connections and a GUI
+    backend (``DISPLAY=:99`` without a server, or no GUI toolkit, makes matplotlib fall back to Agg: False)."""
     backend = os.environ.get("MPLBACKEND", "").lower()
     if backend in ("agg", "pdf", "svg", "ps", "cairo", "template"):
         return False
     if sys.platform.startswith("linux"):
-        return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-    return True
+        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+            return False
+        try:
+            from matplotlib import _c_internal_utils
+
+            if not _c_internal_utils.display_is_valid():  # opens (and closes) a connection to the display
+                return False
+        except (ImportError, AttributeError):
+            pass
+    import matplotlib
+
+    return matplotlib.get_backend().lower() in _interactive_backends()  # resolves the automatic choice
 
 
 def pick_landmarks(image_bgr: np.ndarray, names: list[str], field_model=None) -> tuple[list[str], np.ndarray]:

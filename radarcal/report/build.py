@@ -212,6 +212,10 @@ def _overview(bundle: Bundle, skip_cameras: set[str] = frozenset()) -> Section:
     sec = Section("Bundle overview")
     path = str(bundle.path) if bundle.path else "(in memory)"
     sec.add(f"Bundle {path}: {len(bundle.cameras)} camera(s), {len(bundle.transforms)} transform(s), {len(bundle.sessions)} session file(s).")
+    from radarcal.verdicts import forced_entries
+
+    for flag in forced_entries(bundle):  # results stored against the tool's own verdict (--force)
+        sec.add(f"WARNING: {flag}")
     for name, entry in sorted(bundle.cameras.items()):
         if name not in skip_cameras:  # those get their table in their intrinsics section
             sec.add(_camera_param_table(name, entry))

@@ -93,11 +93,10 @@ def decode_yolov5(pred: np.ndarray, conf_thres: float = 0.25, iou_thres: float =
 
 def read_class_names(path: str | os.PathLike) -> list[str]:
     """Class names from a text file (one per line), JSON/YAML list, or a ``{id: name}`` mapping."""
+    from radarcal.errors import read_text
+
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as e:
-        raise InputError(path, f"cannot read class names ({e.__class__.__name__})") from None
+    text = read_text(path, "class names file")
     if path.suffix.lower() in (".json", ".yaml", ".yml"):
         import yaml
 
@@ -210,21 +209,26 @@ class DetectionsFile:
         path = Path(path)
         if not path.is_file():
             raise InputError(path, "detections file not found")
+        from radarcal.errors import read_text
+
         times, boxes, by_frame = [], [], {}
-        with open(path, encoding="utf-8") as f:
-            for i, line in enumerate(f, 1):
-                if not line.strip():
-                    continue
-                try:
-                    d = json.loads(line)
-                    t = float(d["t"])
-                    dets = [Detection(np.asarray(b["xyxy"], float).reshape(4), str(b.get("label", "")), float(b.get("score", 1.0))) for b in d.get("boxes", [])]
-                except (ValueError, KeyError, TypeError) as e:
-                    raise InputError(path, f"line {i}: not a detection record ({e.__class__.__name__}: {e})") from None
-                if "frame" in d:
-                    by_frame[str(d["frame"])] = len(times)
-                times.append(t)
-                boxes.append(dets)
+        for i, line in enumerate(read_text(path, "detections file").splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                d = json.loads(line)
+                t = float(d["t"])
+                dets = [Detection(np.asarray(b["xyxy"], float).reshape(4), str(b.get("label", "")), float(b.get("score", 1.0))) for b in d.get("boxes", [])]
+                if not (np.isfinite(t) and all(np.all(np.isfinite(x.xyxy)) and np.isfinite(x.score) for x in dets)):
+                    raise ValueError("non-finite time, box or score")
+            except (ValueError, KeyError, TypeError, AttributeError) as e:
+                raise InputError(path, f"line {i}: not a detection record ({e.__class__.__name__}: {e})") from None
+            if "frame" in d:
+                by_frame[str(d["frame"])] = len(times)
+            times.append(t)
+            boxes.append(dets)
+        if not times:
+            raise InputError(path, "no detection records (expected one JSON line per frame: {\"t\", \"frame\", \"boxes\"})")
         order = np.argsort(times, kind="stable")
         remap = {int(o): k for k, o in enumerate(order)}
         return cls(np.asarray(times, float)[order], [boxes[o] for o in order], {k: remap[v] for k, v in by_frame.items()}, tol)

@@ -235,6 +235,9 @@ def robot_id(team: str, number: int) -> int:
 MAP_SLOTS = {2024: (1, 2, 3, 4, 5, 7), 2026: (1, 2, 3, 4, 6, 7)}
 
 
+KNOWN_SEASONS = (2021, 2022, 2023, 2024, 2025, 2026)  # the seasons whose 0x0305 layout and rate limits are known
+
+
 def map_layout(season: int) -> str:
     """``"single14"`` (<= 2022), ``"single10"`` (2023), ``"all24"`` (2024-2025), ``"all48"`` (>= 2026)."""
     season = int(season)

@@ -113,7 +113,7 @@ def test_photonvision_charuco_legacy_and_chessboard(shared, tmp_path, capsys):
     assert s["rms_px"] < 0.3
     K = np.asarray(s["K"])
     assert abs(K[0, 2] - 320) < 32 and abs(K[1, 2] - 240) < 24  # PhotonVision's own test: within 10 % of the centre
-    code, out, err = _run(capsys, ["intrinsics", str(d / "chessboard_640x480"), "--cols", "10", "--rows", "10", "--square", "0.0254", "--camera", "lifecam", "--bundle", str(bundle), "--json"])
+    code, out, err = _run(capsys, ["intrinsics", str(d / "chessboard_640x480"), "--cols", "10", "--rows", "10", "--square", "0.0254", "--camera", "lifecam", "--bundle", str(bundle), "--json", "--force"])
     assert code == 0, err
     s = json.loads(out)["cameras"][0]
     assert s["crossval"]["consistent"] is False and s["crossval"]["diff_median_px"] > 5

@@ -169,7 +169,7 @@ def test_run_bad_bundle_and_detections(sample, tmp_path, capsys):
 def test_hero_offset_from_a_recording(sample, tmp_path, capsys):
     bundle = tmp_path / "calib.yaml"
     shutil.copy(sample / "calib.yaml", bundle)
-    assert main(["hero-offset", "--bundle", str(bundle), "--replay", str(sample), "--team", "blue", "--actual", "10.0", "--json"]) == 0
+    assert main(["hero-offset", "--bundle", str(bundle), "--replay", str(sample), "--team", "blue", "--actual", "10.0", "--force", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     # the measured range is the median over frames of |blue_1 - red_outpost|: compare with the truth's own median
     from radarcal.field import FieldModel
@@ -180,7 +180,7 @@ def test_hero_offset_from_a_recording(sample, tmp_path, capsys):
              for r in json.loads(ln)["robots"] if r["label"] == "blue_1" and r["visible"]]  # fmt: skip
     assert s["frames_with_hero"] > 100 and abs(s["measured_m"] - np.median(truth)) < 0.15
     assert s["hero_range_offset_m"] == pytest.approx(10.0 - s["measured_m"])
-    assert main(["hero-offset", "--bundle", str(bundle), "--replay", str(sample), "--team", "blue", "--marker", "blue_base", "--json"]) == 0
+    assert main(["hero-offset", "--bundle", str(bundle), "--replay", str(sample), "--team", "blue", "--marker", "blue_base", "--force", "--json"]) == 0
     s2 = json.loads(capsys.readouterr().out)
     assert s2["actual_m"] == pytest.approx(np.hypot(*(fm.landmarks["blue_base"][:2] - outpost)))
     assert main(["hero-offset", "--bundle", str(bundle), "--replay", str(sample), "--marker", "nope", "--team", "blue"]) == 2
