@@ -363,7 +363,121 @@ def real_mlcc_dense(seeds=(0, 1, 2)) -> dict:
     return out
 
 
-SECTIONS = {"synth": synth_accuracy, "basin": basin, "time": timing, "mlcc": real_mlcc, "mlcc-joint": real_mlcc_joint, "mlcc-dense": real_mlcc_dense, "opencalib": real_opencalib}
+# ---------------------------------------------------------------------------------------------------------------
+# verdict calibration: false refusals / false acceptances over many scenes of two independent families
+VERDICT_CACHE = Path(__file__).resolve().parents[1] / "out" / "lidar_camera_verdict.jsonl"  # /out/ is git-ignored
+VERDICT_GOOD = (0.1, 0.02)  # a result within 0.1 deg and 2 cm of the truth must be accepted (<= 10 % refusals)
+VERDICT_BAD = (0.2, 0.05)  # a result beyond 0.2 deg or 5 cm must never be called converged
+
+
+def verdict_scene(family: str, seed: int):
+    """One scene of a family, 3 deg / 10 cm off: ``old`` = radarcal.synth.lidar_camera (rosette 1.5 s, 1280x1024),
+    ``family2`` = radarcal.synth.lidar_camera_family2 (its own layouts, patterns, cameras; 1 s)."""
+    if family == "old":
+        return _synth(seed, 3.0, 0.10, duration=1.5)
+    from radarcal.synth.lidar_camera_family2 import Family2Params, render_family2_scene
+
+    return render_family2_scene(Family2Params(seed=seed, duration_s=1.0, init_deg=3.0, init_m=0.10))
+
+
+def verdict_run(scene, **opts):
+    """Edges + refinement exactly as ``radarcal lidar-camera --refine`` runs them by default (crop to the camera,
+    plane + reflectivity edges, LSD >= 40 px, translation prior 0.3 m)."""
+    from radarcal.extrinsics.edges import crop_to_camera, image_edges, lidar_edges, lidar_intensity_edges, merge_edges
+    from radarcal.extrinsics.refine import EdgeScene, RefineOptions, refine_edges
+
+    view = crop_to_camera(scene.points, scene.camera, scene.T_init, margin=0.3)
+    pts = scene.points[view]
+    le = merge_edges(lidar_edges(pts, voxel=0.5, max_range=60.0), lidar_intensity_edges(pts, scene.intensity[view], max_range=60.0))
+    sc = EdgeScene(scene.camera, le, image_edges(scene.image, min_length=40))
+    return refine_edges([sc], scene.T_init, RefineOptions(**{"coarse_search_deg": 6.0, "translation_prior_m": 0.3, **opts}))
+
+
+def _error_params(T_est, T_true) -> np.ndarray:
+    """The error in the refinement's own parameters: T_est = exp(x) T_true, x = (rotation vector rad, translation m)."""
+    from radarcal import geometry
+
+    dT = T_est @ np.linalg.inv(T_true)
+    return np.concatenate([geometry.R_to_rotvec(dT[:3, :3]), dT[:3, 3]])
+
+
+def verdict_sweep(families=("family2", "old"), seeds=range(30), cache: Path = VERDICT_CACHE) -> list[dict]:
+    """Run (or reuse from ``cache``, one JSON line per family/seed) the refinement on every scene; the records
+    hold the truth errors and the checks the verdict is decided on (``RefineResult.checks``)."""
+    from radarcal import geometry
+
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    done: dict = {}
+
+    def reload():  # several sweeps may share the cache (one JSON line per scene, appended)
+        if cache.exists():
+            for line in cache.read_text().splitlines():
+                if line.strip():
+                    r = json.loads(line)
+                    done[(r["family"], r["seed"])] = r
+
+    out = []
+    for fam in families:
+        for seed in seeds:
+            reload()
+            if (fam, seed) not in done:
+                t0 = time.perf_counter()
+                s = verdict_scene(fam, seed)
+                res = verdict_run(s)
+                e_deg, e_m = geometry.pose_error(res.T_cam_lidar, s.T_cam_lidar)
+                rec = {"family": fam, "seed": seed, "layout": s.params.get("layout", "structured"), "lidar": s.params.get("lidar"), "err_deg": e_deg, "err_m": e_m,
+                       "err_params": _error_params(res.T_cam_lidar, s.T_cam_lidar).tolist(), "converged": res.converged, "message": res.message,
+                       "checks": res.checks, "seconds": time.perf_counter() - t0}
+                with cache.open("a") as f:
+                    f.write(json.dumps(rec) + "\n")
+                done[(fam, seed)] = rec
+                print(f"  {fam} seed {seed}: {e_deg:.3f} deg / {e_m * 100:.2f} cm, {'converged' if res.converged else 'refused'} ({rec['seconds']:.0f} s)", flush=True)
+            out.append(done[(fam, seed)])
+    return out
+
+
+def verdict_table(records: list[dict], options=None) -> dict:
+    """False-refusal / false-acceptance table of ``edge_verdict`` (re-applied to the stored checks) per family."""
+    from radarcal.extrinsics.refine import RefineOptions, edge_verdict, sigma_for_verdict
+
+    o = options or RefineOptions(coarse_search_deg=6.0, translation_prior_m=0.3)
+    rows = {}
+    for fam in dict.fromkeys(r["family"] for r in records):
+        rs = [r for r in records if r["family"] == fam]
+        good = [r for r in rs if r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1]]
+        bad = [r for r in rs if r["err_deg"] > VERDICT_BAD[0] or r["err_m"] > VERDICT_BAD[1]]
+        acc = {id(r): edge_verdict(r["checks"], o)[0] for r in rs}
+        covered = []
+        for r in rs:  # honest sigma: every translation axis within 3 sigma of the truth
+            sig = sigma_for_verdict(r["checks"])
+            covered.append(bool(np.all(np.abs(np.asarray(r["err_params"])[3:]) <= 3 * sig[3:] + 1e-9)))
+        rest = [c for r, c in zip(rs, covered) if not (r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1])]
+        rows[fam] = {"scenes": len(rs), "good": len(good), "bad": len(bad), "middle": len(rs) - len(good) - len(bad),
+                     "false_refusals": sum(not acc[id(r)] for r in good), "false_accepts": sum(acc[id(r)] for r in bad),
+                     "accepted": sum(acc.values()), "rest_covered": sum(rest), "rest": len(rest), "all_covered": sum(covered)}
+    return rows
+
+
+def verdict_report(families=("family2", "old"), n: int = 30, cached_only: bool = False) -> dict:
+    """Runs the sweep (resumable: scenes already in the cache are not re-run) and prints the table; with
+    ``cached_only`` only the cached scenes are tabulated (``verdict-table``)."""
+    print(f"\n-- verdict calibration: up to {n} scenes per family from 3 deg / 10 cm (CLI defaults; cache {VERDICT_CACHE}) --")
+    if cached_only:
+        recs = [json.loads(x) for x in VERDICT_CACHE.read_text().splitlines() if x.strip()] if VERDICT_CACHE.exists() else []
+        recs = sorted((r for r in recs if r["family"] in families and r["seed"] < n), key=lambda r: (families.index(r["family"]), r["seed"]))
+    else:
+        recs = verdict_sweep(families, range(n))
+    rows = verdict_table(recs)
+    print(f"| family | scenes | within {VERDICT_GOOD[0]:g} deg / {VERDICT_GOOD[1] * 100:g} cm | refused of those (false refusals) | beyond {VERDICT_BAD[0]:g} deg / {VERDICT_BAD[1] * 100:g} cm | "
+          f"\"converged\" of those (false acceptances) | in between | accepted | translation within 3 sigma (all / rest) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for fam, r in rows.items():
+        print(f"| {fam} | {r['scenes']} | {r['good']} ({100 * r['good'] / max(r['scenes'], 1):.0f} %) | {r['false_refusals']} ({100 * r['false_refusals'] / max(r['good'], 1):.0f} %) | "
+              f"{r['bad']} | {r['false_accepts']} | {r['middle']} | {r['accepted']} | {r['all_covered']}/{r['scenes']} / {r['rest_covered']}/{r['rest']} |")
+    return rows
+
+
+SECTIONS = {"synth": synth_accuracy, "basin": basin, "time": timing, "mlcc": real_mlcc, "mlcc-joint": real_mlcc_joint, "mlcc-dense": real_mlcc_dense, "opencalib": real_opencalib, "verdict": verdict_report, "verdict-table": lambda: verdict_report(cached_only=True)}
 
 
 def main(argv: list[str]) -> int:

@@ -1,0 +1,51 @@
+"""The edge-refinement verdict against ground truth on small scenes of both families (the old structured scene and
+the independent family2): a right result (within 0.1 deg / 2 cm of the truth) is called converged, a wrong one is
+refused. The false-refusal / false-acceptance rates over 30+ scenes per family are a benchmark
+(``python -m benchmarks.lidar_camera verdict``, docs/lidar_camera.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from radarcal import geometry
+from radarcal.extrinsics.edges import crop_to_camera, image_edges, lidar_edges, lidar_intensity_edges, merge_edges
+from radarcal.extrinsics.refine import EdgeScene, RefineOptions, edge_verdict, refine_edges, sigma_for_verdict
+from radarcal.synth.lidar_camera import LidarCameraSceneParams, render_lidar_camera_scene
+from radarcal.synth.lidar_camera_family2 import Family2Params, render_family2_scene
+
+
+def _edge_scene(cam, image, points, intensity, T_init):
+    view = crop_to_camera(points, cam, T_init, margin=0.3)
+    pts = points[view]
+    le = merge_edges(lidar_edges(pts, voxel=0.5, max_range=60.0), lidar_intensity_edges(pts, intensity[view], max_range=60.0))
+    return EdgeScene(cam, le, image_edges(image, min_length=40))
+
+
+def _refine(sc, T_init):
+    return refine_edges([sc], T_init, RefineOptions(coarse_search_deg=6.0, translation_prior_m=0.3))  # the CLI defaults
+
+
+@pytest.mark.parametrize("family,seed", [("family2", 3), ("old", 2)])
+def test_right_result_is_accepted(family, seed):
+    if family == "old":
+        s = render_lidar_camera_scene(LidarCameraSceneParams(seed=seed, duration_s=1.0, supersample=1))
+    else:
+        s = render_family2_scene(Family2Params(seed=seed, duration_s=0.5, resolution="640x512"))
+    r = _refine(_edge_scene(s.camera, s.image, s.points, s.intensity, s.T_init), s.T_init)
+    e_deg, e_m = geometry.pose_error(r.T_cam_lidar, s.T_cam_lidar)
+    assert e_deg < 0.1 and e_m < 0.02, (e_deg, e_m, r.message)
+    assert r.converged, r.message
+    # the reported sigma covers the truth (3 sigma per translation axis, in the refinement's parameters)
+    dT = r.T_cam_lidar @ np.linalg.inv(s.T_cam_lidar)
+    assert np.all(np.abs(dT[:3, 3]) <= 3 * sigma_for_verdict(r.checks)[3:] + 0.002)
+    assert edge_verdict(r.checks, RefineOptions())[0] == r.converged
+
+
+def test_wrong_result_is_refused():
+    # the image of one field and the cloud of another: no extrinsic aligns them, whatever comes out is wrong
+    a = render_family2_scene(Family2Params(seed=1, layout="field", lidar="horizon", duration_s=0.5, resolution="640x512"))
+    b = render_family2_scene(Family2Params(seed=4, layout="field", lidar="horizon", duration_s=0.5, resolution="640x512"))
+    r = _refine(_edge_scene(b.camera, b.image, a.points, a.intensity, b.T_init), b.T_init)
+    assert not r.converged, r.message
+    assert r.message.startswith("did not converge")
