@@ -449,10 +449,19 @@ def verdict_table(records: list[dict], options=None) -> dict:
         acc = {id(r): edge_verdict(r["checks"], o)[0] for r in rs}
         covered = []
         for r in rs:  # honest sigma: every translation axis within 3 sigma of the truth
-            sig = sigma_for_verdict(r["checks"])
+            sig = sigma_for_verdict(r["checks"], o)
             covered.append(bool(np.all(np.abs(np.asarray(r["err_params"])[3:]) <= 3 * sig[3:] + 1e-9)))
         rest = [c for r, c in zip(rs, covered) if not (r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1])]
-        rows[fam] = {"scenes": len(rs), "good": len(good), "bad": len(bad), "middle": len(rs) - len(good) - len(bad),
+        # the verdict as it was when the scene ran (stored "converged"; the standard-deviation bootstrap before this change)
+        prev_fr, prev_fa = sum(not r["converged"] for r in good), sum(r["converged"] for r in bad)
+        acc_cov = [c for r, c in zip(rs, covered) if acc[id(r)]]
+        by_lidar = {}
+        for r in rs:
+            k = r.get("lidar") or "?"
+            n_ok = by_lidar.get(k, (0, 0))
+            by_lidar[k] = (n_ok[0] + 1, n_ok[1] + (r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1]))
+        rows[fam] = {"scenes": len(rs), "good": len(good), "bad": len(bad), "middle": len(rs) - len(good) - len(bad), "prev_false_refusals": prev_fr,
+                     "prev_false_accepts": prev_fa, "accepted_covered": sum(acc_cov), "by_lidar": by_lidar,
                      "false_refusals": sum(not acc[id(r)] for r in good), "false_accepts": sum(acc[id(r)] for r in bad),
                      "accepted": sum(acc.values()), "rest_covered": sum(rest), "rest": len(rest), "all_covered": sum(covered)}
     return rows
@@ -467,13 +476,19 @@ def verdict_report(families=("family2", "old"), n: int = 30, cached_only: bool =
         recs = sorted((r for r in recs if r["family"] in families and r["seed"] < n), key=lambda r: (families.index(r["family"]), r["seed"]))
     else:
         recs = verdict_sweep(families, range(n))
+    from radarcal.extrinsics.refine import RefineOptions, edge_verdict
+
     rows = verdict_table(recs)
     print(f"| family | scenes | within {VERDICT_GOOD[0]:g} deg / {VERDICT_GOOD[1] * 100:g} cm | refused of those (false refusals) | beyond {VERDICT_BAD[0]:g} deg / {VERDICT_BAD[1] * 100:g} cm | "
           f"\"converged\" of those (false acceptances) | in between | accepted | translation within 3 sigma (all / rest) |")
     print("|---|---|---|---|---|---|---|---|---|")
     for fam, r in rows.items():
-        print(f"| {fam} | {r['scenes']} | {r['good']} ({100 * r['good'] / max(r['scenes'], 1):.0f} %) | {r['false_refusals']} ({100 * r['false_refusals'] / max(r['good'], 1):.0f} %) | "
-              f"{r['bad']} | {r['false_accepts']} | {r['middle']} | {r['accepted']} | {r['all_covered']}/{r['scenes']} / {r['rest_covered']}/{r['rest']} |")
+        print(f"| {fam} | {r['scenes']} | {r['good']} ({100 * r['good'] / max(r['scenes'], 1):.0f} %) | {r['false_refusals']} ({100 * r['false_refusals'] / max(r['good'], 1):.0f} %); before: {r['prev_false_refusals']} | "
+              f"{r['bad']} | {r['false_accepts']}; before: {r['prev_false_accepts']} | {r['middle']} | {r['accepted']} (sigma covers {r['accepted_covered']}) | {r['all_covered']}/{r['scenes']} / {r['rest_covered']}/{r['rest']} |")
+    print("\nwithin 0.1 deg / 2 cm by LiDAR pattern: " + "; ".join(f"{fam}: " + ", ".join(f"{k} {g}/{n}" for k, (n, g) in r["by_lidar"].items()) for fam, r in rows.items()))
+    for rec in recs:
+        print(f"  {rec['family']:>8} {rec['seed']:>3} {rec['layout']:>10} {str(rec['lidar']):>8} {rec['err_deg']:7.3f} deg {rec['err_m'] * 100:6.2f} cm  "
+              f"{'converged' if edge_verdict(rec['checks'], RefineOptions(coarse_search_deg=6.0, translation_prior_m=0.3))[0] else 'refused':>9}  {rec['seconds']:.0f} s")
     return rows
 
 

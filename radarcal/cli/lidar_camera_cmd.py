@@ -273,7 +273,7 @@ def lidar_camera(
             typer.echo(f"  edges: {q['message']}")
             typer.echo(f"  edge score {q['edge_score_before_px']:.2f} -> {q['edge_score_after_px']:.2f} px; sigma {_sigma_text(q['sigma_rot_deg'], q['sigma_trans_m'], rotation_only)} "
                        f"(lower bound); edge-direction spread {q['observability']['direction_spread']:.2f}")
-            typer.echo(f"  block-bootstrap sigma {_sigma_text(q['sigma_bootstrap_rot_deg'], q['sigma_bootstrap_trans_m'], rotation_only)} (edge stretches resampled; biases not included)")
+            typer.echo(f"  block-bootstrap sigma {_sigma_text(q['sigma_bootstrap_rot_deg'], q['sigma_bootstrap_trans_m'], rotation_only)} (edge stretches resampled, equally good restarts, a shared-bias floor)")
         for w in s["warnings"]:
             typer.echo(f"  warning: {w}")
         if s.get("overlay"):

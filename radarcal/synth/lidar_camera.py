@@ -392,6 +392,6 @@ def write_lidar_camera_scene(scene: LidarCameraScene, out_dir: str | Path, comma
     paths["init"].write_text(json.dumps({"T_cam_lidar": scene.T_init.tolist()}, indent=1))
     b = Bundle()
     b.set_camera("cam0", scene.camera, provenance=Provenance(command=command or "radarcal synth lidar-camera"), extra={"synthetic": True})
-    b.set_sensor("lidar0", type="lidar", model="livox-mid70-like" if scene.params.get("lidar") == "rosette" else "spinning")
+    b.set_sensor("lidar0", type="lidar", model=scene.params.get("sensor_model") or ("livox-mid70-like" if scene.params.get("lidar") == "rosette" else "spinning"))
     save_bundle(b, paths["bundle"])
     return paths

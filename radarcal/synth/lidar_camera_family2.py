@@ -404,7 +404,8 @@ def render_family2_scene(params: Family2Params | None = None) -> LidarCameraScen
 
     T_init = geometry.perturb_T(T, p.init_deg, p.init_m, rng)
     objects = [{"id": k + 1, "kind": ob["kind"], "albedo": ob["albedo"]} for k, ob in enumerate(w.objects)]
-    pd = {"family": "family2", "seed": p.seed, "layout": layout, "lidar": lidar, "duration_s": p.duration_s, "range_noise_m": float(sigma_r),
+    model = {"avia": "livox-avia-like", "horizon": "livox-horizon-like", "spin32": "spinning-32", "spin64": "spinning-64"}[lidar]
+    pd = {"family": "family2", "seed": p.seed, "layout": layout, "lidar": lidar, "sensor_model": model, "duration_s": p.duration_s, "range_noise_m": float(sigma_r),
           "lidar_height_m": float(height), "init_deg": p.init_deg, "init_m": p.init_m, "camera": cam.to_dict(), "image_noise": float(noise)}
     return LidarCameraScene(img, id_img, points, refl.astype(np.float32), (obj + 1).astype(np.int32), cam_visible, cam, T, T_init, objects, [], pd,
                             [(ob["v"], ob["f"]) for ob in w.objects])

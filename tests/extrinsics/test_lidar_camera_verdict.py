@@ -26,23 +26,40 @@ def _refine(sc, T_init):
     return refine_edges([sc], T_init, RefineOptions(coarse_search_deg=6.0, translation_prior_m=0.3))  # the CLI defaults
 
 
-@pytest.mark.parametrize("family,seed", [("family2", 3), ("old", 2)])
+# each run is 30-60 s on an idle 2-core machine (the verdict's restarts are most of it): slow
+@pytest.mark.slow
+@pytest.mark.parametrize("family,seed", [("family2", 0), ("old", 0)])
 def test_right_result_is_accepted(family, seed):
+    # the sweep's scenes (benchmarks.lidar_camera.verdict_scene): family2 seed 0 is a corridor seen by the Avia-like
+    # pattern and a 640x512 camera; old seed 0 the structured scene, rosette 1.5 s
     if family == "old":
-        s = render_lidar_camera_scene(LidarCameraSceneParams(seed=seed, duration_s=1.0, supersample=1))
+        s = render_lidar_camera_scene(LidarCameraSceneParams(seed=seed, duration_s=1.5, init_deg=3.0, init_m=0.10))
     else:
-        s = render_family2_scene(Family2Params(seed=seed, duration_s=0.5, resolution="640x512"))
+        s = render_family2_scene(Family2Params(seed=seed, duration_s=1.0))
     r = _refine(_edge_scene(s.camera, s.image, s.points, s.intensity, s.T_init), s.T_init)
     e_deg, e_m = geometry.pose_error(r.T_cam_lidar, s.T_cam_lidar)
     assert e_deg < 0.1 and e_m < 0.02, (e_deg, e_m, r.message)
     assert r.converged, r.message
     # the reported sigma covers the truth (3 sigma per translation axis, in the refinement's parameters)
     dT = r.T_cam_lidar @ np.linalg.inv(s.T_cam_lidar)
-    assert np.all(np.abs(dT[:3, 3]) <= 3 * sigma_for_verdict(r.checks)[3:] + 0.002)
-    assert edge_verdict(r.checks, RefineOptions())[0] == r.converged
+    assert np.all(np.abs(dT[:3, 3]) <= 3 * r.sigma_bootstrap[3:])
+    assert np.allclose(r.sigma_bootstrap, sigma_for_verdict(r.checks, RefineOptions()))
+    assert edge_verdict(r.checks, RefineOptions(coarse_search_deg=6.0, translation_prior_m=0.3))[0] == r.converged
 
 
+@pytest.mark.slow
 def test_wrong_result_is_refused():
+    # family2 seed 2 (a parking lot, Avia-like): the refinement lands in a wrong minimum; the verdict must say so
+    s = render_family2_scene(Family2Params(seed=2, duration_s=1.0))
+    r = _refine(_edge_scene(s.camera, s.image, s.points, s.intensity, s.T_init), s.T_init)
+    e_deg, e_m = geometry.pose_error(r.T_cam_lidar, s.T_cam_lidar)
+    assert not r.converged or (e_deg <= 0.2 and e_m <= 0.05), (e_deg, e_m, r.message)
+    if e_deg > 0.2 or e_m > 0.05:
+        assert r.message.startswith("did not converge")
+
+
+@pytest.mark.slow
+def test_mismatched_image_is_refused():
     # the image of one field and the cloud of another: no extrinsic aligns them, whatever comes out is wrong
     a = render_family2_scene(Family2Params(seed=1, layout="field", lidar="horizon", duration_s=0.5, resolution="640x512"))
     b = render_family2_scene(Family2Params(seed=4, layout="field", lidar="horizon", duration_s=0.5, resolution="640x512"))
