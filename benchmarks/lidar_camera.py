@@ -473,7 +473,7 @@ def verdict_report(families=("family2", "old"), n: int = 30, cached_only: bool =
     print(f"\n-- verdict calibration: up to {n} scenes per family from 3 deg / 10 cm (CLI defaults; cache {VERDICT_CACHE}) --")
     if cached_only:
         recs = [json.loads(x) for x in VERDICT_CACHE.read_text().splitlines() if x.strip()] if VERDICT_CACHE.exists() else []
-        recs = sorted((r for r in recs if r["family"] in families and r["seed"] < n), key=lambda r: (families.index(r["family"]), r["seed"]))
+        recs = sorted({(r["family"], r["seed"]): r for r in recs if r["family"] in families and r["seed"] < n}.values(), key=lambda r: (families.index(r["family"]), r["seed"]))
     else:
         recs = verdict_sweep(families, range(n))
     from radarcal.extrinsics.refine import RefineOptions, edge_verdict

@@ -563,6 +563,7 @@ def sigma_for_verdict(checks: dict, o: RefineOptions | None = None) -> np.ndarra
       the result was 1.6 cm from the truth), and
     * the ambiguity: the largest offset of a restart (valley or stability) that ended elsewhere at an alignment cost
       within ``o.ambiguity_cost_ratio`` of the result's - a minimum about as good that the data cannot rule out, and
+    * the Jacobian sigma (a lower bound), and
     * a floor for the biases every edge shares (``o.sigma_floor_deg`` / ``o.sigma_floor_m``: right results on the
       structured family were up to 1.3 cm off with a bootstrap spread of 0.1-0.3 cm).
     Falls back to the standard deviation when the samples were not kept."""
@@ -576,4 +577,6 @@ def sigma_for_verdict(checks: dict, o: RefineOptions | None = None) -> np.ndarra
     close = rs[rs[:, 6] <= o.ambiguity_cost_ratio, :6] if len(rs) else np.zeros((0, 6))
     if len(close):
         sig = np.maximum(sig, np.abs(close).max(axis=0))
+    jac = np.asarray(checks.get("sigma_jacobian", np.zeros(6)), float)
+    sig = np.maximum(sig, np.where(np.isfinite(jac), jac, 0.0))  # never below the Jacobian's lower bound
     return np.maximum(sig, np.array([np.radians(o.sigma_floor_deg)] * 3 + [o.sigma_floor_m] * 3))

