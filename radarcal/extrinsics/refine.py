@@ -66,7 +66,7 @@ class RefineOptions:
     valley_margin: float = 0.01  # relative cost decrease that makes a valley restart the new result
     stability_tol_deg: float = 0.1
     stability_tol_m: float = 0.02  # distinct coarse-search minima refined in full (plus the initial guess itself)
-    max_translation_move_m: float = 0.5  # a camera centre that moved farther from the initial guess is not trusted
+    max_translation_move_m: float = 0.3  # a camera centre that moved farther from the initial guess is not trusted (0.5 before: old-family seed 22 moved 0.31 m into a 0.45 deg / 27 cm minimum; right results move 0.09-0.11 m from a 10 cm start)
     bootstrap: int = 40  # block-bootstrap resamples for sigma_bootstrap (0: none)
     max_bootstrap_sigma_deg: float = 0.15  # a result whose bootstrap sigma exceeds these is weakly constrained
     max_bootstrap_sigma_m: float = 0.03  # camera x and y
