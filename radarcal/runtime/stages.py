@@ -26,7 +26,6 @@ _COLOURS = {"red": "red", "r": "red", "blue": "blue", "b": "blue", "grey": "grey
 _NUMBER_WORDS = {"hero": 1, "engineer": 2, "infantry3": 3, "infantry4": 4, "infantry5": 5, "standard3": 3, "standard4": 4, "standard5": 5,
                  "aerial": 6, "drone": 6, "sentry": 7, "guard": 7}  # fmt: skip
 _NOT_ROBOT = {"outpost", "base", "negative", "neg", "none", "background", "bg", "0", "false", "unknown"}
-_LABEL = re.compile(r"^(?:armou?r[_\- ]?)?([a-z]+?)[_\- ]?(\d+|[a-z]+\d?)?$")
 
 
 def parse_number_label(label: str | None) -> int | None:
@@ -50,15 +49,19 @@ def parse_armour_label(label: str | None) -> tuple[str | None, int | None, bool]
     ``grey``, ``R3``, ``B1``, ``red_3``, ``armor_blue_sentry``, ``purple``."""
     if label is None:
         return None, None, False
-    s = str(label).strip().lower()
-    m = _LABEL.match(s)
-    if not m:
+    s = re.sub(r"^armou?r[_\- ]?", "", str(label).strip().lower())
+    if s in _COLOURS:
+        return _COLOURS[s], None, _COLOURS[s] == "grey"
+    parts = re.split(r"[_\- ]+", s)
+    m = re.match(r"^([a-z]+)(\d+)$", s)
+    if len(parts) >= 2 and parts[0] in _COLOURS:
+        head, tail = parts[0], "_".join(parts[1:])
+    elif m and m.group(1) in _COLOURS:
+        head, tail = m.group(1), m.group(2)
+    else:  # no colour, e.g. "sentry"
         return None, parse_number_label(s), False
-    head, tail = m.group(1), m.group(2)
-    colour = _COLOURS.get(head)
-    if colour is None:  # e.g. "sentry" alone
-        return None, parse_number_label(s), False
-    return colour, parse_number_label(tail) if tail else None, colour == "grey"
+    colour = _COLOURS[head]
+    return colour, parse_number_label(tail), colour == "grey"
 
 
 def combine_label(robot_label: str, armour_label: str | None, number_label: str | None) -> tuple[str, bool]:
