@@ -142,6 +142,14 @@ def detect_layout(inputs: list[tuple[str, list]], outputs: list[tuple[str, list]
         raise fail("not B x K x 6")
     if a is None and k is None:
         raise fail("output dimensions unknown")
+    if want is None and nc_hint is not None:  # the names' class count says which one fits
+        v5, v8, v8t = k == 5 + nc_hint, a == 4 + nc_hint, k == 4 + nc_hint
+        if v5 and not v8:
+            return Layout("yolov5", nc_hint)
+        if v8 and not v5:
+            return Layout("yolov8", nc_hint)
+        if v8t and not v8:
+            return Layout("yolov8", nc_hint, "transposed")
     channel_first = a is not None and (k is None or a < k)  # (4+C) x N: few rows, many columns (YOLOv5 never is)
     if want == "yolov8" or (want is None and channel_first):
         nc = (a if channel_first else k) - 4
