@@ -25,7 +25,7 @@ def run(
     anchors: Path = typer.Option(None, "--anchors", help="Raw-head layout: YAML with anchors: (and strides:), e.g. the YOLOv5 model YAML."),
     armour: Path = typer.Option(None, "--armour", help="Armour detector ONNX run on each robot crop (grey/dead class marks the robot dead)."),
     armour_names: Path = typer.Option(None, "--armour-names", help="Armour class names file (default: the model's metadata)."),
-    number: Path = typer.Option(None, "--number", help="Number classifier ONNX run on each armour crop (needs --armour)."),
+    number: Path = typer.Option(None, "--number", help="Number classifier ONNX run on each armour crop (on each robot crop without --armour)."),
     number_names: Path = typer.Option(None, "--number-names", help="Number class names file (default: the model's metadata)."),
     providers: str = typer.Option("cpu", "--providers", help="onnxruntime providers in order, e.g. tensorrt,cuda,cpu (needs onnxruntime-gpu)."),
     conf: float = typer.Option(0.25, "--conf", help="Detector confidence threshold."),
@@ -78,8 +78,6 @@ def run(
 
     if detector is None and (armour is not None or number is not None):
         raise InputError("--armour" if armour is not None else "--number", "needs --detector (the robot detector)")
-    if number is not None and armour is None:
-        raise InputError("--number", "needs --armour (numbers are read on armour crops)")
     if detector is not None:
         detect = _open_detector(detector, names, detector_layout, anchors, armour, armour_names, number, number_names, providers, conf, threads)
     else:

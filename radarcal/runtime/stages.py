@@ -2,6 +2,7 @@
 robot boxes on the full frame, an armour detector on each robot crop (with a grey / dead class), then a small
 number classifier on each armour crop, so that the label comes from the armour, not the robot's silhouette.
 
+Without ``armour`` the number classifier reads the robot crops directly (a detector + classifier pair, HUST 2025).
 Every stage is batched: all robot crops of all frames in one armour run (each crop letterboxed to the armour model's
 input on its own), all armour crops in one number run (plain resize to the classifier's input, grey when it has one
 channel). Labels combine into ``red_3``: colour from the armour (else the robot detector's label), number from the
@@ -183,6 +184,20 @@ class Recogniser:
                 d.armour_label, d.armour_xyxy = alabel, axyxy
                 d.number_label = numbers.get((i, j))
                 d.label, d.dead = combine_label(d.label, alabel, d.number_label)
+        elif self.number is not None:  # no armour stage: the number classifier reads the robot crops (HUST 2025 style)
+            keys, crops = [], []
+            for i, (img, dets) in enumerate(zip(images, robots)):
+                for j, d in enumerate(dets):
+                    crop, _ = _crop(img, d.xyxy, 0.0)
+                    if crop is not None:
+                        keys.append((i, j))
+                        crops.append(crop)
+            for (i, j), (lab, p) in zip(keys, self.number.classify(crops)):
+                if p >= self.number_conf:
+                    d = robots[i][j]
+                    d.number_label = lab
+                    d.label, d.dead = combine_label(d.label, None, lab)
+            timings["number"] = (time.perf_counter() - t1) * 1e3
         self.last_timings_ms = timings
         return robots
 

@@ -154,8 +154,10 @@ def test_bad_models_one_line_exit_2(frame0, tmp_path, capsys):
     assert code == 2 and "names.txt" in err[-1] and "3 class names but v8.onnx has 12 classes" in err[-1]
     code, err = _bad(["--detector", str(good), "--detector-layout", "yolov9000"], capsys)
     assert code == 2 and "yolov9000" in err[-1]
-    code, err = _bad(["--detector", str(good), "--number", str(good)], capsys)
-    assert code == 2 and "--number" in err[-1] and "--armour" in err[-1]
+    code, err = _bad(["--detector", str(good), "--number", str(good)], capsys)  # a detector given as the number classifier
+    assert code == 2 and "v8.onnx" in err[-1] and "number classifier: expected one N x classes output" in err[-1]
+    code, err = _bad(["--number", str(good)], capsys)
+    assert code == 2 and "--number" in err[-1] and "needs --detector" in err[-1]
     code, err = _bad(["--detector", str(good), "--providers", "tpu9"], capsys)
     assert code == 2 and "tpu9" in err[-1]
     assert len([ln for ln in err if ln.startswith("error")]) == 1

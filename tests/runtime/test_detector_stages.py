@@ -83,6 +83,21 @@ def test_armour_without_number_stage_and_no_armour(tmp_path):
     assert Recogniser(OnnxDetector(robot, threads=1))(img)[0].armour_label is None
 
 
+def test_number_classifier_on_robot_crops_without_armour(tmp_path):
+    """Detector + classifier (no armour stage): the classifier reads the whole robot crop; colour from the robot label."""
+    img, robot, _, _ = _scene(tmp_path)
+    levels = {"red_4": 0.45, "blue_7": 0.65}
+    for xyxy, label, _, _ in ROBOTS:
+        x1, y1, x2, y2 = xyxy
+        img[y1 : y2 + 1, x1 : x2 + 1] = int(round(levels.get(label, 0.9) * 255))  # each robot body in its number's grey level
+    number = tmp_path / "n3.onnx"
+    make_grey_level_classifier(number, [0.45, 0.65, 0.9], ["4", "sentry", "negative"], 32, channels=3)
+    rec = Recogniser(OnnxDetector(robot, threads=1), number=NumberClassifier(number, threads=1), crop_margin=0.05)
+    got = sorted((d.label, d.number_label) for d in rec(img))
+    assert got == [("blue_7", "sentry"), ("red_4", "4"), ("robot", "negative"), ("robot", "negative")]
+    assert set(rec.last_timings_ms) == {"robot", "number"}
+
+
 @pytest.mark.parametrize(("label", "parsed"), [("red", ("red", None, False)), ("B1", ("blue", 1, False)), ("R3", ("red", 3, False)),
                                                ("armor_blue_sentry", ("blue", 7, False)), ("dead", ("grey", None, True)),
                                                ("gray_4", ("grey", 4, True)), ("purple", ("grey", None, True)), ("sentry", (None, 7, False))])  # fmt: skip
