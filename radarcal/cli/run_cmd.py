@@ -28,6 +28,7 @@ def run(
     number: Path = typer.Option(None, "--number", help="Number classifier ONNX run on each armour crop (on each robot crop without --armour)."),
     number_names: Path = typer.Option(None, "--number-names", help="Number class names file (default: the model's metadata)."),
     providers: str = typer.Option("cpu", "--providers", help="onnxruntime providers in order, e.g. tensorrt,cuda,cpu (needs onnxruntime-gpu)."),
+    detect_ahead: bool = typer.Option(True, "--detect-ahead/--no-detect-ahead", help="Run the detector one frame ahead in a thread (throughput; +1 frame latency)."),
     conf: float = typer.Option(0.25, "--conf", help="Detector confidence threshold."),
     threads: int = typer.Option(0, "--threads", help="onnxruntime intra-op threads per model (0 = its default)."),
     detections: Path = typer.Option(None, "--detections", help="Precomputed detections (JSON lines, one per frame)."),
@@ -96,6 +97,8 @@ def run(
     if detector is not None:  # the pixels are needed: decode them ahead in a thread (live sources: newest frame only)
         live = video is not None and (video.isdigit() or "://" in video)
         frames = prefetch_frames(frames, latest_only=live)
+        if detect_ahead:
+            frames = detect.frames(frames)
     link = None
     if serial:
         from radarcal.runtime.serial_link import SerialLink
@@ -141,9 +144,10 @@ def run(
 
 
 def _open_detector(detector, names, layout, anchors, armour, armour_names, number, number_names, providers, conf, threads):
-    """The robot detector (+ optional armour and number stages) as ``detect(frame)`` with ``last_timings_ms``."""
+    """The robot detector (+ optional armour and number stages) as ``detect(frame)`` with ``last_timings_ms`` and
+    ``frames(src)`` (detection one frame ahead in a thread)."""
     from radarcal.runtime.detector import OnnxDetector, read_class_names
-    from radarcal.runtime.stages import FrameDetector, NumberClassifier, Recogniser
+    from radarcal.runtime.stages import DetectAhead, NumberClassifier, Recogniser
 
     anchor_cfg = None
     if anchors is not None:
@@ -167,7 +171,7 @@ def _open_detector(detector, names, layout, anchors, armour, armour_names, numbe
     num = NumberClassifier(number, names_of(number_names), number_names, threads=threads, providers=providers) if number else None
     err_console.print(f"detector {robot.describe()}" + (f"; armour {arm.describe()}" if arm else "") + (f"; number {num.path.name}" if num else ""),
                       highlight=False, markup=False)  # fmt: skip
-    return FrameDetector(Recogniser(robot, arm, num))
+    return DetectAhead(Recogniser(robot, arm, num))
 
 
 def compute_hero_offset(measured_m: float, actual_m: float) -> float:

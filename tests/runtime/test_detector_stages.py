@@ -111,3 +111,33 @@ def test_number_and_combined_labels():
     assert combine_label("blue_2", "dead", None) == ("blue_2", True)
     assert combine_label("red_1", "blue", "5") == ("blue_5", False)  # the armour overrules the silhouette
     assert combine_label("car", None, None) == ("car", False)
+
+
+def test_detect_ahead_same_results_in_order_and_errors_reraised(tmp_path):
+    from radarcal.errors import InputError
+    from radarcal.runtime.sources import CameraFrame
+    from radarcal.runtime.stages import DetectAhead
+
+    img, robot, armour, number = _scene(tmp_path)
+    rec = Recogniser(OnnxDetector(robot, threads=1), OnnxDetector(armour, threads=1), NumberClassifier(number, threads=1))
+    want = sorted(d.label for d in rec(img))
+    imgs = [img, np.zeros_like(img), None, img]  # None: an unreadable frame
+
+    def load(k):
+        if imgs[k] is None:
+            raise InputError(f"{k:06d}.jpg", "cannot decode image")
+        return imgs[k]
+
+    src = [CameraFrame(k / 30, f"{k:06d}.jpg", (lambda k=k: load(k)), k) for k in range(4)]
+    ahead = DetectAhead(rec)
+    got = []
+    for f in ahead.frames(iter(src)):
+        try:
+            got.append((f.index, sorted(d.label for d in ahead(f))))
+        except InputError as e:
+            got.append((f.index, str(e)))
+    assert [g[0] for g in got] == [0, 1, 2, 3]
+    assert got[0][1] == want and got[3][1] == want
+    assert got[1][1] == sorted(d.label for d in rec(np.zeros_like(img)))  # black frame: every armour grey
+    assert got[2][1] == "000002.jpg: cannot decode image"
+    assert set(ahead.last_timings_ms) == {"robot", "armour", "number"}
