@@ -111,6 +111,8 @@ def run(
     finally:
         if link is not None:
             link.close()
+        if hasattr(frames, "close"):  # stop the decode / detect-ahead threads before exit (a thread still inside
+            frames.close()  # OpenCV or onnxruntime at interpreter exit aborted the process: exit 134 after --max-frames)
         if cloud_src is not None and hasattr(cloud_src, "close"):
             cloud_src.close()
     summary.pop("results")

@@ -255,6 +255,8 @@ class DetectAhead:
                 for _, fut in pending:
                     fut.cancel()
                 self._ready.clear()
+                if hasattr(frames, "close"):  # stop the source's own threads (frame prefetch) too
+                    frames.close()
 
     def __call__(self, frame) -> list[Detection]:
         fut = self._ready.pop(id(frame), None)

@@ -176,3 +176,20 @@ def test_missing_gpu_provider_falls_back_to_cpu(frame0, tmp_path, capsys):
     notes = [ln for ln in cap.err.splitlines() if "CUDAExecutionProvider" in ln]
     assert len(notes) == 1 and "onnxruntime-gpu" in notes[0] and "CPU" in notes[0]
     assert json.loads(cap.out)["frames"] == 1
+
+
+def test_early_stop_exits_cleanly_in_a_real_process(frame0, tmp_path):
+    """--max-frames stops while the decode thread is still busy: the process must still exit 0 (it aborted with 134,
+    'terminate called without an active exception', when a thread was left inside OpenCV at interpreter exit)."""
+    import subprocess
+    import sys
+
+    boxes, _ = frame0
+    model = tmp_path / "v8.onnx"
+    _model(model, "yolov8", boxes)
+    root = Path(__file__).resolve().parents[2]
+    for extra in ([], ["--no-detect-ahead"]):
+        p = subprocess.run([sys.executable, "-m", "radarcal", "run", "--replay", str(SAMPLE), "--detector", str(model), "--max-frames", "1", "--json", *extra],
+                           cwd=root, capture_output=True, text=True, timeout=120)  # fmt: skip
+        assert p.returncode == 0, (extra, p.stderr[-300:])
+        assert json.loads(p.stdout)["frames"] == 1
