@@ -179,7 +179,6 @@ def layout_outputs(layout: str, per_image: list[tuple], nc: int, input_size: int
 
     b = len(per_image)
     sets = [(np.asarray(bx, np.float32).reshape(-1, 4), np.asarray(c, np.int64).reshape(-1), np.asarray(s, np.float32).reshape(-1)) for bx, c, s in per_image]
-    k_max = max([len(c) for _, c, _ in sets] + [1])
     if layout in ("yolov5", "yolov8", "yolov8t"):
         off = 5 if layout == "yolov5" else 4
         t = np.zeros((b, rows, off + nc), np.float32)
@@ -312,7 +311,6 @@ def make_colour_armour_model(path: str | os.PathLike, input_size: int = 192, box
              numpy_helper.from_array(np.array([1, 0, -1], np.float32).reshape(1, 3), "wd"),
              numpy_helper.from_array(np.array(sharpness, np.float32), "k"), numpy_helper.from_array(np.array(margin, np.float32), "mg"),
              numpy_helper.from_array(np.array([-1, 3, 1], np.int64), "s3"), numpy_helper.from_array(np.array([-1, 1, 1], np.int64), "s1")]  # fmt: skip
-    order = {"red": "red", "blue": "blue", "grey": "grey"}
     nodes = [
         helper.make_node("ReduceMean", ["images"], ["rgb"], axes=[2, 3], keepdims=0),  # (B,3)
         helper.make_node("Mul", ["rgb", "wd"], ["rgbw"]),
@@ -326,7 +324,7 @@ def make_colour_armour_model(path: str | os.PathLike, input_size: int = 192, box
     parts = []
     for n in names:
         key = "grey" if n.lower() in ("grey", "gray", "dead", "purple") else n.lower()
-        parts.append(cols[order[key]])
+        parts.append(cols[key])
     nodes += [helper.make_node("Concat", parts, ["cat"], axis=1), helper.make_node("Mul", ["cat", "k"], ["catk"]),
               helper.make_node("Sigmoid", ["catk"], ["probs"]), helper.make_node("Reshape", ["probs", "s3"], ["probs3"]),
               helper.make_node("Mul", ["probs3", "mask"], ["cls"]),  # (B,3,N): the class scores in column 0 only
@@ -462,7 +460,7 @@ def make_yolov8n_like(path: str | os.PathLike, nc: int = 12, input_size: int = 6
         b, _ = g.conv(feat, ch, 64, 3, 1, side)
         b, _ = g.conv(b, 64, 64, 3, 1, side)
         b, _ = g.conv(b, 64, 4 * reg, 1, 1, side, act=False, scale=0.1)
-        c3 = max(ch if ch < 64 else 64, min(nc, 100))
+        c3 = max(min(ch, 64), min(nc, 100))  # YOLOv8n: max(64, nc)
         c, _ = g.conv(feat, ch, c3, 3, 1, side)
         c, _ = g.conv(c, c3, c3, 3, 1, side)
         c, _ = g.conv(c, c3, nc, 1, 1, side, act=False, bias=-9.0, scale=0.1)  # class prob ~1e-4: no NMS flood
