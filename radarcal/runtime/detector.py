@@ -344,7 +344,7 @@ class OnnxDetector:
 
 @dataclass
 class DetectionsFile:
-    """Precomputed detections: one JSON line per frame ``{"t", "frame"?, "boxes": [{"xyxy", "label", "score"}]}``.
+    """Precomputed detections: one JSON line per frame ``{"t", "frame"?, "boxes": [{"xyxy", "label", "score", "dead"?}]}``.
 
     Lookup by frame name when given, else by the nearest time within ``tol`` seconds."""
 
@@ -366,7 +366,8 @@ class DetectionsFile:
                 try:
                     d = json.loads(line)
                     t = float(d["t"])
-                    dets = [Detection(np.asarray(b["xyxy"], float).reshape(4), str(b.get("label", "")), float(b.get("score", 1.0))) for b in d.get("boxes", [])]
+                    dets = [Detection(np.asarray(b["xyxy"], float).reshape(4), str(b.get("label", "")), float(b.get("score", 1.0)), dead=bool(b.get("dead", False)),
+                                      armour_label=b.get("armour"), number_label=b.get("number")) for b in d.get("boxes", [])]  # fmt: skip
                 except (ValueError, KeyError, TypeError) as e:
                     raise InputError(path, f"line {i}: not a detection record ({e.__class__.__name__}: {e})") from None
                 if "frame" in d:
