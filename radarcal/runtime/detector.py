@@ -251,6 +251,9 @@ def to_tensor(images: list[np.ndarray], channels: int = 3) -> np.ndarray:
         if channels == 1:
             g = im if im.ndim == 2 else cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
             np.multiply(g, 1.0 / 255.0, out=x[i, 0], casting="unsafe")
+        elif im.ndim == 2:  # a mono camera's frame into a colour model: the same plane three times
+            np.multiply(im, 1.0 / 255.0, out=x[i, 0], casting="unsafe")
+            x[i, 1:] = x[i, 0]
         else:
             for c in range(3):  # RGB planes from BGR
                 np.multiply(im[:, :, 2 - c], 1.0 / 255.0, out=x[i, c], casting="unsafe")
@@ -298,15 +301,19 @@ class OnnxDetector:
         return f"{self.path.name}: {lay}, input {self.input_size[1]}x{self.input_size[0]}, {len(self.class_names)} classes, {'/'.join(p.replace('ExecutionProvider', '') for p in self.model.providers)}"
 
     def preprocess(self, images: list[np.ndarray]) -> tuple[np.ndarray, list[tuple[float, tuple[float, float], tuple[int, int]]]]:
+        import cv2
+
         lbs, geo = [], []
         for im in images:
+            if im.ndim == 3 and im.shape[2] != 3:  # BGRA / single-channel 3-D frames
+                im = cv2.cvtColor(im, cv2.COLOR_BGRA2BGR) if im.shape[2] == 4 else im[:, :, 0]
             lb, r, pad = letterbox(im, self.input_size)
             lbs.append(lb)
             geo.append((r, pad, im.shape[:2]))
         return to_tensor(lbs, self.model.channels), geo
 
     def __call__(self, images):
-        if isinstance(images, np.ndarray) and images.ndim == 3:
+        if isinstance(images, np.ndarray) and (images.ndim == 2 or (images.ndim == 3 and images.shape[2] in (1, 3, 4))):
             return self.detect_batch([images])[0]
         return self.detect_batch(list(images))
 

@@ -140,7 +140,7 @@ class Recogniser:
         self.last_timings_ms: dict[str, float] = {}
 
     def __call__(self, images):
-        if isinstance(images, np.ndarray) and images.ndim == 3:
+        if isinstance(images, np.ndarray) and (images.ndim == 2 or (images.ndim == 3 and images.shape[2] in (1, 3, 4))):
             return self.detect_batch([images])[0]
         return self.detect_batch(list(images))
 

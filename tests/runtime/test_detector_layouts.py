@@ -58,6 +58,8 @@ def test_layout_detected_and_decoded_per_image(tmp_path, layout):
     assert len(out) == 3
     if layout == "yolov8":  # fixed batch 3 fed two frames: padded with a blank image, its rows ignored
         assert [len(x) for x in det(_frames()[:2])] == [3, 2]
+        mono = [f[:, :, 1].copy() for f in _frames()]  # a mono camera's 2-D frames: same geometry, same boxes
+        assert [len(x) for x in det(mono)] == [3, 2, 1] and len(det(mono[0])) == 3
     tol = 0.05 if layout == "raw" else 2e-3  # raw: sigmoid/logit round trip in float32
     for dets, truth in zip(out, TRUTH):
         assert len(dets) == len(truth)
