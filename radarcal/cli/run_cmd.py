@@ -21,10 +21,18 @@ def run(
     clouds: str = typer.Option(None, "--clouds", help="LiDAR: folder of PCD/npy/bin, ROS1/ROS2 bag, or livox://HOST:PORT (Livox SDK1 UDP)."),
     cloud_topic: str = typer.Option(None, "--cloud-topic", help="Bag topic (default: every Livox CustomMsg / PointCloud2 topic)."),
     cloud_offset: float = typer.Option(0.0, "--cloud-time-offset", help="Seconds added to cloud times before pairing with frames."),
-    detector: Path = typer.Option(None, "--detector", help="YOLOv5-style ONNX model."),
-    names: Path = typer.Option(None, "--names", help="Class names file (default: the model's metadata)."),
+    detector: Path = typer.Option(None, "--detector", help="Robot detector ONNX (YOLOv5, YOLOv8/YOLO11/YOLOv12, end-to-end or raw heads)."),
+    names: Path = typer.Option(None, "--names", help="Robot class names: YOLO data.yaml, text file, JSON/YAML list (default: the model's metadata)."),
+    detector_layout: str = typer.Option(None, "--detector-layout", help="Output layout yolov5|yolov8|end2end|raw (default: from the graph)."),
+    anchors: Path = typer.Option(None, "--anchors", help="Raw-head layout: YAML with anchors: (and strides:), e.g. the YOLOv5 model YAML."),
+    armour: Path = typer.Option(None, "--armour", help="Armour detector ONNX run on each robot crop (grey/dead class marks the robot dead)."),
+    armour_names: Path = typer.Option(None, "--armour-names", help="Armour class names file (default: the model's metadata)."),
+    number: Path = typer.Option(None, "--number", help="Number classifier ONNX run on each armour crop (on each robot crop without --armour)."),
+    number_names: Path = typer.Option(None, "--number-names", help="Number class names file (default: the model's metadata)."),
+    providers: str = typer.Option("cpu", "--providers", help="onnxruntime providers in order, e.g. tensorrt,cuda,cpu (needs onnxruntime-gpu)."),
+    detect_ahead: bool = typer.Option(True, "--detect-ahead/--no-detect-ahead", help="Run the detector one frame ahead in a thread (throughput; +1 frame latency)."),
     conf: float = typer.Option(0.25, "--conf", help="Detector confidence threshold."),
-    threads: int = typer.Option(0, "--threads", help="onnxruntime intra-op threads (0 = its default)."),
+    threads: int = typer.Option(0, "--threads", help="onnxruntime intra-op threads per model (0 = its default)."),
     detections: Path = typer.Option(None, "--detections", help="Precomputed detections (JSON lines, one per frame)."),
     serial: str = typer.Option(None, "--serial", help="Referee serial port, e.g. /dev/ttyUSB0 (115200 8N1)."),
     out: Path = typer.Option(None, "--out", help="Per-frame JSON lines (robots in field coordinates)."),
@@ -41,7 +49,7 @@ def run(
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
     from radarcal.bundle import load_bundle
-    from radarcal.runtime.detector import DetectionsFile, OnnxDetector, read_class_names
+    from radarcal.runtime.detector import DetectionsFile
     from radarcal.runtime.loop import OnlineEvaluator, Pipeline, RunConfig, pick_frames
     from radarcal.runtime.loop import run as run_loop
     from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, open_replay, prefetch_frames
@@ -80,9 +88,10 @@ def run(
         err_console.print(f"warning: {w}", style="yellow")
     pipe = Pipeline(b, cam_name, lidar_name if has_clouds else None, cfg)
 
+    if detector is None and (armour is not None or number is not None):
+        raise InputError("--armour" if armour is not None else "--number", "needs --detector (the robot detector)")
     if detector is not None:
-        det = OnnxDetector(detector, read_class_names(names) if names else None, conf_thres=conf, threads=threads)
-        detect = lambda f: det(f.load())  # noqa: E731
+        detect = _open_detector(detector, names, detector_layout, anchors, armour, armour_names, number, number_names, providers, conf, threads)
     else:
         det_path = detections or (rep.detections if rep else None)
         if det_path is None:
@@ -99,6 +108,8 @@ def run(
     if detector is not None:  # the pixels are needed: decode them ahead in a thread (live sources: newest frame only)
         live = video is not None and (video.isdigit() or "://" in video)
         frames = prefetch_frames(frames, latest_only=live)
+        if detect_ahead:
+            frames = detect.frames(frames)
     link = None
     if serial:
         from radarcal.runtime.serial_link import SerialLink
@@ -111,6 +122,8 @@ def run(
     finally:
         if link is not None:
             link.close()
+        if hasattr(frames, "close"):  # stop the decode / detect-ahead threads before exit (a thread still inside
+            frames.close()  # OpenCV or onnxruntime at interpreter exit aborted the process: exit 134 after --max-frames)
         if cloud_src is not None and hasattr(cloud_src, "close"):
             cloud_src.close()
     summary.pop("results")
@@ -149,6 +162,37 @@ def run(
             typer.echo(f"  warning: {w}")
 
     emit(summary, as_json, human)
+
+
+def _open_detector(detector, names, layout, anchors, armour, armour_names, number, number_names, providers, conf, threads):
+    """The robot detector (+ optional armour and number stages) as ``detect(frame)`` with ``last_timings_ms`` and
+    ``frames(src)`` (detection one frame ahead in a thread)."""
+    from radarcal.runtime.detector import OnnxDetector, read_class_names
+    from radarcal.runtime.stages import DetectAhead, NumberClassifier, Recogniser
+
+    anchor_cfg = None
+    if anchors is not None:
+        import yaml
+
+        from radarcal.errors import read_text
+
+        try:
+            anchor_cfg = yaml.safe_load(read_text(anchors, "anchor config"))
+        except yaml.YAMLError:
+            raise InputError(anchors, "anchor config: not valid YAML") from None
+        if not isinstance(anchor_cfg, dict) or "anchors" not in anchor_cfg:
+            raise InputError(anchors, "anchor config: expected a mapping with anchors:")
+
+    def names_of(p):
+        return read_class_names(p) if p else None
+
+    robot = OnnxDetector(detector, names_of(names), conf_thres=conf, threads=threads, layout=layout, providers=providers, anchors=anchor_cfg, names_source=names)
+    arm = OnnxDetector(armour, names_of(armour_names), conf_thres=conf, threads=threads, providers=providers, names_source=armour_names,
+                       what="armour model") if armour else None  # fmt: skip
+    num = NumberClassifier(number, names_of(number_names), number_names, threads=threads, providers=providers) if number else None
+    err_console.print(f"detector {robot.describe()}" + (f"; armour {arm.describe()}" if arm else "") + (f"; number {num.path.name}" if num else ""),
+                      highlight=False, markup=False)  # fmt: skip
+    return DetectAhead(Recogniser(robot, arm, num))
 
 
 def compute_hero_offset(measured_m: float, actual_m: float) -> float:

@@ -78,6 +78,7 @@ class RobotOut:
     depth: float | None
     score: float | None
     raw: np.ndarray | None  # (3,) this frame's unfiltered measurement
+    dead: bool = False  # its armour was grey when last seen: tracked, never sent as a target
 
     def to_dict(self) -> dict:
         d = {"label": self.label, "x": round(float(self.p_field[0]), 3), "y": round(float(self.p_field[1]), 3), "z": round(float(self.p_field[2]), 3),
@@ -87,6 +88,8 @@ class RobotOut:
             d["raw"] = [round(float(v), 3) for v in self.raw]
         if self.score is not None:
             d["score"] = round(self.score, 3)
+        if self.dead:
+            d["dead"] = True
         return d
 
 
@@ -137,6 +140,7 @@ class Pipeline:
         self.localiser = Localiser(self.camera, self.T_field_cam, self.field_model, cfg.robot_radius_m, cfg.visible_depth_factor)
         self.tracks = TrackManager(accel_sigma=cfg.accel_sigma, max_coast_s=cfg.max_coast_s)
         self.clouds_in = 0
+        self.dead: dict[str, bool] = {}  # label -> its armour was grey when last detected
 
     def add_cloud(self, t: float, points: np.ndarray) -> None:
         if self.queue is not None and len(points):
@@ -154,6 +158,8 @@ class Pipeline:
             if d.score >= self.cfg.min_score and (d.label not in best or d.score > best[d.label].score):
                 best[d.label] = d
         dets = list(best.values())
+        for d in dets:
+            self.dead[d.label] = bool(getattr(d, "dead", False))
         boxes = np.array([d.xyxy for d in dets], float).reshape(-1, 4)
         depth = np.full(len(dets), np.nan)
         dsig = np.full(len(dets), np.nan)
@@ -184,7 +190,7 @@ class Pipeline:
             xy = tr.xy
             robots.append(RobotOut(tr.label, np.array([xy[0], xy[1], float(z)]), tr.source if measured else "predicted", tr.sigma,
                                    float(depth[i]) if measured and np.isfinite(depth[i]) else None,
-                                   dets[i].score if i is not None else None, loc.p_field[i] if measured else None))  # fmt: skip
+                                   dets[i].score if i is not None else None, loc.p_field[i] if measured else None, self.dead.get(tr.label, False)))  # fmt: skip
         toc = time.perf_counter()
         timings["track"] = (toc - tic) * 1e3
         team = team or self.cfg.team
@@ -197,7 +203,7 @@ class Pipeline:
         s_xy = sentry.p_field[:2] if sentry is not None else (np.asarray(self.cfg.sentry_xy, float) if self.cfg.sentry_xy else None)
         if s_xy is None:
             return None
-        enemies = [r for r in robots if _team_of(r.label) not in (None, team)]
+        enemies = [r for r in robots if _team_of(r.label) not in (None, team) and not r.dead]
         if not enemies:
             return {"target": None, "sentry": [round(float(v), 3) for v in s_xy], "from": "track" if sentry is not None else "config"}
         d = np.array([r.p_field[:2] - s_xy for r in enemies])
@@ -219,8 +225,9 @@ class Pipeline:
     def referee_messages(self, res: FrameResult, team: str) -> list[tuple[int, bytes, int]]:
         """(cmd_id, data, mailbox key) to send for a frame: minimap 0x0305, sentry guidance, hero range."""
         enemy_team = "blue" if team == "red" else "red"
-        enemy = {n: tuple(r.p_field[:2]) for r in res.robots if _team_of(r.label) == enemy_team and (n := _number_of(r.label))}
-        ally = {n: tuple(r.p_field[:2]) for r in res.robots if _team_of(r.label) == team and (n := _number_of(r.label))}
+        live = [r for r in res.robots if not r.dead]  # a dead robot (grey armour) is tracked but never sent
+        enemy = {n: tuple(r.p_field[:2]) for r in live if _team_of(r.label) == enemy_team and (n := _number_of(r.label))}
+        ally = {n: tuple(r.p_field[:2]) for r in live if _team_of(r.label) == team and (n := _number_of(r.label))}
         out = []
         for i, payload in enumerate(rp.map_payload(self.cfg.season, enemy, ally, enemy_team)):
             out.append((rp.CMD_MAP, payload, i))
@@ -484,6 +491,8 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
                 dets = []
             tic = time.perf_counter()
             timings["detect"] = (tic - toc) * 1e3
+            for k, v in (getattr(detect, "last_timings_ms", None) or {}).items():  # detector stages: robot / armour / number
+                timings[f"detect_{k}"] = v
             team = pipeline.cfg.team
             if link is not None and link.state.team:
                 team = link.state.team
@@ -523,6 +532,9 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
                 last_status = now
                 rec = timer.recent()
                 stages = " ".join(f"{k} {rec.get(k, 0):.1f}" for k in STAGES)
+                sub = " ".join(f"{k[7:]} {v:.1f}" for k, v in rec.items() if k.startswith("detect_"))
+                if sub:
+                    stages = stages.replace(f"detect {rec.get('detect', 0):.1f}", f"detect {rec.get('detect', 0):.1f} ({sub})", 1)
                 srcs = {}
                 for r in res.robots:
                     srcs[r.source] = srcs.get(r.source, 0) + 1

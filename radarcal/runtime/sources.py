@@ -683,6 +683,12 @@ def prefetch_frames(frames: Iterator[CameraFrame], depth: int = 3, latest_only: 
             yield g
     finally:
         stop.set()
+        while th.is_alive():  # unblock a put on a full queue and wait: a thread still decoding at exit aborts Python
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                pass
+            th.join(timeout=0.05)
 
 
 # --- pairing ---------------------------------------------------------------------------------------------------------
