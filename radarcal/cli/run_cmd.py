@@ -18,7 +18,8 @@ def run(
     video: str = typer.Option(None, "--video", help="Camera: video file, image folder, device index or URL."),
     clouds: str = typer.Option(None, "--clouds", help="LiDAR: folder of PCD/npy/bin, ROS1/ROS2 bag, or livox://HOST:PORT (Livox SDK1 UDP)."),
     cloud_topic: str = typer.Option(None, "--cloud-topic", help="Bag topic (default: every Livox CustomMsg / PointCloud2 topic)."),
-    cloud_offset: float = typer.Option(0.0, "--cloud-time-offset", help="Seconds added to cloud times before pairing with frames."),
+    cloud_offset: str = typer.Option("0", "--cloud-time-offset", help="Camera clock minus LiDAR clock, seconds (t_camera = t_cloud + offset; 0: one clock, e.g. a replay "
+                                     "or a bag with both topics), or 'first': the first cloud pairs with the first frame."),
     detector: Path = typer.Option(None, "--detector", help="YOLOv5-style ONNX model."),
     names: Path = typer.Option(None, "--names", help="Class names file (default: the model's metadata)."),
     conf: float = typer.Option(0.25, "--conf", help="Detector confidence threshold."),
@@ -50,6 +51,7 @@ def run(
         raise InputError("radarcal run", "give at most one of --detector and --detections")
     if team is not None and team not in ("red", "blue"):
         raise InputError("--team", f"expected red or blue, got {team!r}")
+    offset = _cloud_offset(cloud_offset)
     rep = open_replay(replay) if replay is not None else None
     if bundle is None:
         if rep is None or rep.bundle is None:
@@ -95,17 +97,17 @@ def run(
         link = SerialLink(serial, season=cfg.season).start()
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     try:
-        summary = run_loop(pipe, merge_by_time(frames, cloud_src, cloud_offset), detect, out, minimap, link, status=not quiet and not as_json,
+        summary = run_loop(pipe, merge_by_time(frames, cloud_src, offset), detect, out, minimap, link, status=not quiet and not as_json,
                            max_frames=max_frames, on_frame=evaluator)  # fmt: skip
     finally:
         if link is not None:
             link.close()
-        if cloud_src is not None and hasattr(cloud_src, "close"):
+        if cloud_src is not None:
             cloud_src.close()
     summary.pop("results")
-    from radarcal.runtime.sources import SKIPPED
-
-    summary["skipped_inputs"] = len(SKIPPED)
+    skipped = getattr(cloud_src, "skipped", None)
+    summary["skipped_inputs"] = skipped.total if skipped is not None else 0
+    summary["skipped_by_reason"] = dict(skipped.counts) if skipped is not None else {}
     if evaluator is not None:
         summary["accuracy"] = evaluator.summary()
     summary.update({"bundle": str(bundle), "camera": cam_name, "lidar": lidar_name if has_clouds else None, "out": str(out) if out else None,
@@ -130,6 +132,21 @@ def run(
             typer.echo(f"  minimap -> {s['minimap']}")
 
     emit(summary, as_json, human)
+
+
+def _cloud_offset(text: str) -> float | str:
+    """``--cloud-time-offset``: seconds, or ``first``."""
+    import math
+
+    if text.strip().lower() == "first":
+        return "first"
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v):
+        raise InputError("--cloud-time-offset", f"expected seconds or 'first', got {text!r}")
+    return v
 
 
 def compute_hero_offset(measured_m: float, actual_m: float) -> float:
