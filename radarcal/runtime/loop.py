@@ -128,12 +128,13 @@ class Pipeline:
             self.field_model = FieldModel.from_dict(bundle.field_model, bundle.path)
         self.queue = None
         if lidar is not None:
+            T_cam_lidar = bundle.T(camera, lidar)  # solved once; the queue transforms each cloud once (camera + field rows)
             flt = None
             if cfg.surface_filter:
                 surf = self.field_model.surface_z if self.field_model is not None else None
                 structs = getattr(self.field_model, "structures", None) if self.field_model is not None else None
-                flt = SurfaceFilter(self.T_field_cam @ bundle.T(camera, lidar), surf, min_height=cfg.surface_min_height_m, structures=structs)
-            self.queue = CloudQueue(self.camera, bundle.T(camera, lidar), cfg.cloud_queue_points, cfg.cloud_queue_age_s, point_filter=flt)
+                flt = SurfaceFilter(self.T_field_cam @ T_cam_lidar, surf, min_height=cfg.surface_min_height_m, structures=structs)
+            self.queue = CloudQueue(self.camera, T_cam_lidar, cfg.cloud_queue_points, cfg.cloud_queue_age_s, point_filter=flt)
         self.localiser = Localiser(self.camera, self.T_field_cam, self.field_model, cfg.robot_radius_m, cfg.visible_depth_factor)
         self.tracks = TrackManager(accel_sigma=cfg.accel_sigma, max_coast_s=cfg.max_coast_s)
         self.clouds_in = 0
