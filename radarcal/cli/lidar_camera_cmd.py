@@ -33,7 +33,8 @@ def lidar_camera(
     camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
     lidar: str = typer.Option("lidar0", "--lidar", help="LiDAR name (frame) in the bundle."),
     images: list[Path] = typer.Option([], "--image", help="Image (raw, distorted); repeat for several scenes, paired in order with --cloud."),
-    clouds: list[Path] = typer.Option([], "--cloud", help="Point cloud (PCD/PLY/KITTI .bin/.npy) in the LiDAR frame; one per --image."),
+    clouds: list[Path] = typer.Option([], "--cloud", help="Point cloud (PCD/PLY/KITTI .bin/.npy) in the LiDAR frame, or a ROS bag whose clouds (one topic) are merged; one per --image."),
+    cloud_topic: str = typer.Option(None, "--cloud-topic", help="Bag topic of the clouds (needed when a --cloud bag has several cloud topics)."),
     init: Path = typer.Option(None, "--init", help="Initial T_cam_lidar: 4x4 JSON/text or 'x y z roll pitch yaw' (m, deg)."),
     corners: Path = typer.Option(None, "--corners", help="Manual correspondences CSV x,y,z,u,v[,view]."),
     board: str = typer.Option(None, "--board", help="Board size WIDTH,HEIGHT in m: detect boards in the clouds (RANSAC plane, rectangle, 4 corners)."),
@@ -56,7 +57,8 @@ def lidar_camera(
 ) -> None:
     """Calibrate T_cam_lidar: manual corners / boards (PnP) and/or targetless edge refinement."""
     from radarcal.extrinsics import lidar_camera as lc
-    from radarcal.io import read_cloud, read_image, read_transform
+    from radarcal.io import read_image, read_transform
+    from radarcal.io.cloud_sources import read_scene_cloud
     from radarcal.io.corners_csv import read_corners_csv, read_uv_csv
     from radarcal.synth.lidar_camera import MOUNT_R_CAM_LIDAR
 
@@ -77,7 +79,7 @@ def lidar_camera(
     for p, im in zip(images, imgs):
         if (im.shape[1], im.shape[0]) != cam.image_size:
             raise InputError(p, f"image is {im.shape[1]}x{im.shape[0]} but camera {camera!r} in the bundle is {cam.width}x{cam.height}")
-    clds = [read_cloud(p) for p in clouds]
+    clds = [read_scene_cloud(p, cloud_topic) for p in clouds]
     for p, c in zip(clouds, clds):
         if len(c) < 100:
             raise InputError(p, f"only {len(c)} points")
