@@ -53,7 +53,7 @@ def field_pnp(
 ) -> None:
     """Solve the camera's pose on the field from clicked landmarks; write T_<camera>_field and an error map."""
     from radarcal.bundle import Provenance, hash_inputs, load_bundle, save_bundle, save_session
-    from radarcal.field import field_from_dict, load_field
+    from radarcal.field import load_field
     from radarcal.io import read_image
     from radarcal.pnp.error_map import error_map
     from radarcal.pnp.field_pnp import FieldPnPError, PnPOptions, solve_field_pnp
@@ -74,7 +74,7 @@ def field_pnp(
         fm = load_field(field)
         field_src = field
     elif b.field_model:
-        fm = field_from_dict(b.field_model, f"{bundle}: field")
+        fm = b.field()
         field_src = f"bundle ({fm.name})"
     else:
         fm = load_field("rmuc2024")

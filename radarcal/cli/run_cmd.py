@@ -184,11 +184,9 @@ def hero_offset(
     if replay is not None:
         measured, extra = _hero_range_from_recording(b, replay, team)
         if marker is not None:
-            from radarcal.field import FieldModel
-
-            if not b.field_model:
+            fm = b.field()
+            if fm is None:
                 raise InputError(bundle, "no field model in the bundle (needed for --marker)")
-            fm = FieldModel.from_dict(b.field_model, bundle)
             enemy = "blue" if team == "red" else "red"
             for name in (marker, f"{enemy}_outpost"):
                 if name not in fm.landmarks:
