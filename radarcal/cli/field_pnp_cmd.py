@@ -52,11 +52,12 @@ def field_pnp(
     as_json: bool = JsonOpt,
 ) -> None:
     """Solve the camera's pose on the field from clicked landmarks; write T_<camera>_field and an error map."""
-    from radarcal.bundle import Provenance, hash_inputs, load_bundle, save_bundle, save_session
+    from radarcal.bundle import Provenance, hash_inputs, load_bundle, save_bundle
     from radarcal.field import load_field
     from radarcal.io import read_image
     from radarcal.pnp.error_map import error_map
     from radarcal.pnp.field_pnp import FieldPnPError, PnPOptions, solve_field_pnp
+    from radarcal.pnp.session import FieldPnPSession
     from radarcal.pnp.picks import DEFAULT_PICKS, has_display, pick_landmarks, read_picks, write_picks
 
     if overlay is not None and image is None:
@@ -127,25 +128,12 @@ def field_pnp(
     prov = Provenance(command=command_line(), inputs_sha256=hash_inputs([picks_src] + ([image] if image else []), extra={"field": fm.to_dict(), "click_sigma": click_sigma, "max_rms": max_rms, "ransac_px": ransac_px}))
     b.set_transform(camera, "field", res.T_cam_field, method=f"field-pnp ({res.method}) on {fm.name}", residual={"rms_px": res.rms_px, "per_point_px": per_point, "n_picks": len(names), "n_inliers": int(res.inliers.sum()), "outliers": [n for n, k in zip(names, res.inliers) if not k]}, sigma=res.sigma, provenance=prov)
     b.field_model = fm.to_dict()
-    save_session(
-        b,
-        f"field_pnp/{camera}",
-        {
-            "names": np.array(names, dtype=str),
-            "uv": res.uv,
-            "p_field": res.p_field,
-            "residuals_px": res.residuals_px,
-            "inliers": res.inliers,
-            "T_cam_field": res.T_cam_field,
-            "cov_pose": res.cov_pose,
-            "camera_position": res.camera_position,
-            "grid_x": em.xs,
-            "grid_y": em.ys,
-            "sigma_lidar": em.sigma_lidar,
-            "sigma_ground": em.sigma_ground,
-        },
-        {"field": fm.name, "camera": camera, "click_sigma_px": click_sigma, "pixel_sigma_px": pixel_sigma, "range_sigma_m": range_sigma, "rms_px": res.rms_px, "depth_source": used, "lidar": lidar_name, "warnings": res.warnings, "picks_file": str(picks_src)},
-    )
+    FieldPnPSession(
+        names=np.array(names, dtype=str), uv=res.uv, p_field=res.p_field, residuals_px=res.residuals_px, inliers=res.inliers, T_cam_field=res.T_cam_field,
+        cov_pose=res.cov_pose, camera_position=res.camera_position, grid_x=em.xs, grid_y=em.ys, sigma_lidar=em.sigma_lidar, sigma_ground=em.sigma_ground,
+        field=fm.name, camera=camera, click_sigma_px=click_sigma, pixel_sigma_px=pixel_sigma, range_sigma_m=range_sigma, rms_px=float(res.rms_px),
+        depth_source=used, lidar=lidar_name, image=str(image) if image else "", picks_file=str(picks_src), warnings=list(res.warnings),
+    ).save(b, f"field_pnp/{camera}")  # fmt: skip
     save_bundle(b, bundle)
     if error_map_png is not None:
         from radarcal.pnp.figures import save_error_map_png

@@ -9,9 +9,10 @@ import numpy as np
 import typer
 
 from radarcal import geometry
-from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
+from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
+from radarcal.extrinsics.lidar_camera_session import LidarCameraSession
 
 __all__ = ["lidar_camera"]
 
@@ -96,7 +97,7 @@ def lidar_camera(
     method = []
     residual: dict = {}
     sigma: dict = {}
-    arrays: dict = {"T_init": T0}
+    sess = LidarCameraSession(T_init=T0, camera=camera, lidar=lidar)  # what the report draws
 
     # ---- manual: picks and/or boards
     P_all, U_all = [], []
@@ -136,7 +137,7 @@ def lidar_camera(
         residual.update({"pnp_rms_px": sol.rms_px, "pnp_n_used": sol.n_used, "pnp_n_flagged": int(sol.outliers.sum())})
         sigma.update({"pnp_rot_deg": np.degrees(sol.sigma[:3]).tolist(), "pnp_trans_m": sol.sigma[3:].tolist()})
         summary["pnp"] = {"rms_px": sol.rms_px, "residuals_px": sol.residuals_px, "flagged_rows": np.flatnonzero(sol.outliers), "sigma_rot_deg": np.degrees(sol.sigma[:3]), "sigma_trans_m": sol.sigma[3:]}
-        arrays.update({"pnp_p_lidar": P, "pnp_uv": U, "pnp_residuals_uv": sol.residuals_uv, "pnp_flagged": sol.outliers, "T_pnp": T})
+        sess.pnp_p_lidar, sess.pnp_uv, sess.pnp_residuals_uv, sess.pnp_flagged, sess.T_pnp = P, U, sol.residuals_uv, sol.outliers, T
 
     # ---- targetless refinement
     converged = True
@@ -153,7 +154,7 @@ def lidar_camera(
         if image_edges_kind not in ("lsd", "canny"):
             raise InputError("--image-edges", f"expected 'lsd' or 'canny', got {image_edges_kind!r}")
         if refine_method == "dense":
-            converged, T = _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, arrays)
+            converged, T = _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, sess)
             method.append("dense-edge-correlation")
     if refine and refine_method == "matches":
         scenes = []
@@ -193,9 +194,10 @@ def lidar_camera(
         sigma.update({"edge_rot_deg": np.degrees(res.sigma[:3]).tolist(), "edge_trans_m": res.sigma[3:].tolist()})
         if np.all(np.isfinite(res.sigma_bootstrap)):
             sigma.update({"edge_bootstrap_rot_deg": np.degrees(res.sigma_bootstrap[:3]).tolist(), "edge_bootstrap_trans_m": res.sigma_bootstrap[3:].tolist()})
-        arrays.update({"residuals_before": res.residuals_before, "residuals_after": res.residuals_after, **res.matches})
-        for name in PARAM_NAMES:
-            arrays[f"profile_{name}_offset"], arrays[f"profile_{name}_cost"] = res.profiles[name]
+        sess.residuals_before, sess.residuals_after, sess.scene_matches = res.residuals_before, res.residuals_after, dict(res.matches)
+        sess.profile_offsets = np.stack([np.asarray(res.profiles[n][0], float) for n in PARAM_NAMES])
+        sess.profile_costs = np.stack([np.asarray(res.profiles[n][1], float) for n in PARAM_NAMES])
+        sess.robust_scale_px = float(opts.loss_scale_px)
 
     moved = geometry.pose_error(T, T0)
     xyz_rpy = geometry.T_to_xyz_rpy_deg(T)
@@ -213,13 +215,13 @@ def lidar_camera(
         summary["overlay"] = str(overlay)
     if converged or force:
         inputs = [*images, *clouds] + [p for p in (init, corners, board_uv) if p is not None]
-        arrays["T_final"] = T
         b.set_transform(camera, lidar, T, method=" + ".join(method), residual=residual, sigma=sigma,
                         provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs(inputs)))
         b.set_sensor(lidar, type=b.sensors.get(lidar, {}).get("type", "lidar"))
         if b.path is None:
             b.path = Path(bundle)
-        save_session(b, f"lidar_camera/{camera}_{lidar}", arrays, {"init": init_src, "method": " + ".join(method), "converged": converged, "pairs": summary["pairs"]})
+        sess.T_final, sess.init, sess.method, sess.converged, sess.pairs, sess.warnings = T, init_src, " + ".join(method), bool(converged), summary["pairs"], list(summary["warnings"])
+        sess.save(b, f"lidar_camera/{camera}_{lidar}")
         save_bundle(b, bundle)
         summary["stored"] = True
     summary["seconds"] = time.perf_counter() - t_start
@@ -256,7 +258,7 @@ def lidar_camera(
         raise typer.Exit(1)
 
 
-def _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, arrays):
+def _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, sess):
     """``--refine-method dense``: all pairs share one T; the sparse method's edge score is reported as the common
     yardstick (before / after)."""
     from radarcal.extrinsics.dense import DenseOptions, DenseScene, image_energy, refine_dense
@@ -280,5 +282,5 @@ def _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxe
                                "restart_spread_deg": res.spread_deg, "restart_spread_m": res.spread_m}
     residual.update({"dense_score": res.score, "dense_score_before": res.score_init, "edge_score_px": e1, "edge_score_before_px": e0,
                      "dense_restart_spread_deg": res.spread_deg, "dense_restart_spread_m": res.spread_m})
-    arrays["T_dense"] = res.T_cam_lidar
+    sess.T_dense = res.T_cam_lidar
     return res.converged, res.T_cam_lidar

@@ -36,8 +36,8 @@ def test_refine_cli_stores_transform_and_session(synth_dir, capsys):
     e = b.transforms["T_cam0_lidar0"]
     assert "edge-alignment" in e.method and e.residual["edge_matches"] > 100 and len(e.sigma["edge_rot_deg"]) == 3
     arrays, meta = load_session(b, "lidar_camera/cam0_lidar0")
-    assert {"residuals_before", "residuals_after", "profile_rx_cost", "scene0_uv"} <= set(arrays)
-    assert meta["converged"] is True
+    assert {"residuals_before", "residuals_after", "profile_costs", "scene0_uv"} <= set(arrays) and arrays["profile_costs"].shape[0] == 6
+    assert meta["converged"] is True and meta["kind"] == "lidar_camera" and meta["camera"] == "cam0"
 
 
 def test_corners_cli(synth_dir, tmp_path, capsys):
