@@ -31,6 +31,81 @@ def _nan_to_none(a: np.ndarray) -> list:
     return [[None if not np.isfinite(x) else round(float(x), 6) for x in row] for row in np.asarray(a)]
 
 
+def _write_view(out: Path, name: str, view: BoardView, rigs: list, seeds: tuple, spec: BoardSpec, bad_px: float, blur_streak: tuple[float, float]) -> dict:
+    """Render one planned view through every camera of ``rigs`` ((camera, T_cami_cam0, renderer, prefix, key
+    suffix)), write its PNG(s) and return its truth entry. ``seeds``: the view's seed for camera 0 and camera 1."""
+    import cv2
+
+    camera = rigs[0][0]
+    entry: dict = {"kind": view.kind, "has_board": view.T_cam_board is not None, "readable": view.kind != "corrupt", "gain": round(view.gain, 6)}
+    warp, amplitude = None, 0.0
+    if view.kind == "bad":
+        amplitude = bad_view_amplitude(camera, spec, view.T_cam_board, bad_px)
+        warp = bow_warp(spec, amplitude)
+        entry["bad_reason"] = f"printed pattern bowed by {amplitude * 1000:.3f} mm along y (not flat)"
+        entry["bad_bow_m"] = round(amplitude, 12)
+    streak, angle = 0.0, 0.0
+    for cam, T_ci_cam0, renderer, prefix, sfx in rigs:
+        vrng = np.random.default_rng(seeds[0] if not sfx else seeds[1])
+        entry["file" + sfx] = prefix + name
+        if view.T_cam_board is None:
+            img = render_blank(renderer, vrng)
+            entry.update({"T_cam_board" if not sfx else "T_cam1_board": None, "corners_uv" + sfx: None,
+                          "visible" + sfx: None, "corner_ids" + sfx: [], "n_visible" + sfx: 0})  # fmt: skip
+        else:
+            T = T_ci_cam0 @ view.T_cam_board
+            if view.kind == "blurred" and not sfx:
+                streak = float(vrng.uniform(*blur_streak)) * cam.width
+                angle = float(vrng.uniform(0, np.pi))
+                entry.update(motion_blur_px=round(streak, 4), motion_blur_angle_deg=round(np.degrees(angle), 4))
+            img = renderer.render(T, vrng, warp=warp, gain=view.gain, motion_blur_px=streak, motion_angle=angle)
+            uv, vis = board_truth_pixels(cam, spec, T)
+            entry.update({"T_cam_board" if not sfx else "T_cam1_board": np.round(T, 12).tolist(),
+                          "corners_uv" + sfx: _nan_to_none(uv), "visible" + sfx: vis.tolist(),
+                          "corner_ids" + sfx: np.nonzero(vis)[0].tolist(), "n_visible" + sfx: int(vis.sum())})  # fmt: skip
+            if warp is not None:
+                uv_a, _ = board_truth_pixels(cam, spec, T, warp=warp)
+                entry["corners_uv_actual" + sfx] = _nan_to_none(uv_a)
+                entry["bad_displacement_px_max" + sfx] = round(float(np.nanmax(np.linalg.norm(uv_a - uv, axis=1))), 4)
+        ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 3])
+        data = buf.tobytes()
+        if view.kind == "corrupt":
+            data = data[: max(64, len(data) // 3)]
+        (out / (prefix + name)).write_bytes(data)
+        entry["crc32" + sfx] = format(zlib.crc32(data) & 0xFFFFFFFF, "08x")
+    return entry
+
+
+def _truth_document(entries: list[dict], seed: int, command: str, camera: Camera, spec: BoardSpec, obj: np.ndarray, settings: RenderSettings, coverage: str) -> dict:
+    """The ``truth.json`` document of a set (camera 0 part; the writer adds ``video`` and ``stereo``)."""
+    return {
+        "format": TRUTH_FORMAT,
+        "seed": int(seed),
+        "command": command,
+        "model": model_name(camera),
+        "camera": camera.to_dict(),
+        "image_size": list(camera.image_size),
+        "K": camera.K.tolist(),
+        "dist": camera.dist.tolist(),
+        "board": spec.to_dict(),
+        "object_points": obj.tolist(),
+        "render": settings.to_dict(),
+        "noise": {"image_noise_sigma_dn": settings.noise_sigma, "blur_sigma_px": settings.blur_sigma,
+                  "vignetting": settings.vignetting, "supersample": settings.supersample},
+        "coverage": coverage,
+        "files": _file_lists(entries, "file"),
+        "views": entries,
+    }
+
+
+def _file_lists(entries: list[dict], key: str) -> dict:
+    """Files of every kind (``all``, ``board``, ``full`` ...) from the entries' ``key`` (``file`` / ``file_cam1``)."""
+    kinds = ("full", "partial", "bad", "blurred", "blank", "corrupt")
+    lists = {"all": [e[key] for e in entries], "board": [e[key] for e in entries if e["kind"] in ("full", "partial", "bad", "blurred")]}
+    lists.update({k: [e[key] for e in entries if e["kind"] == k] for k in kinds})
+    return lists
+
+
 def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec, n_views: int = 25, seed: int = 0,
                     settings: RenderSettings = RenderSettings(), coverage: str = "full", n_partial: int = 2,
                     n_blank: int = 2, n_corrupt: int = 1, bad_view: bool = False, bad_px: float = 1.5,
@@ -52,7 +127,6 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     ``video_seconds > 0`` also writes ``video.avi`` (MJPG, camera 0): the board moving smoothly through the full
     views' poses, dwelling at each, motion-blurred in proportion to its speed; per-frame truth under ``video``.
     """
-    import cv2
 
     if spec.legacy is None:  # "decide automatically" means nothing to a renderer: it draws the new layout
         spec = replace(spec, legacy=False)
@@ -86,72 +160,10 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     entries = []
     iterator = range(len(order)) if progress is None else progress(range(len(order)))
     for i in iterator:
-        view = all_views[order[i]]
-        name = f"img_{i:03d}.png"
-        entry: dict = {"kind": view.kind, "has_board": view.T_cam_board is not None,
-                       "readable": view.kind != "corrupt", "gain": round(view.gain, 6)}
-        warp, amplitude = None, 0.0
-        if view.kind == "bad":
-            amplitude = bad_view_amplitude(camera, spec, view.T_cam_board, bad_px)
-            warp = bow_warp(spec, amplitude)
-            entry["bad_reason"] = f"printed pattern bowed by {amplitude * 1000:.3f} mm along y (not flat)"
-            entry["bad_bow_m"] = round(amplitude, 12)
-        streak, angle = 0.0, 0.0
-        for cam, T_ci_cam0, renderer, prefix, sfx in rigs:
-            vrng = np.random.default_rng(view_seeds[order[i]] if not sfx else stereo_seeds[order[i]])
-            entry["file" + sfx] = prefix + name
-            if view.T_cam_board is None:
-                img = render_blank(renderer, vrng)
-                entry.update({"T_cam_board" if not sfx else "T_cam1_board": None, "corners_uv" + sfx: None,
-                              "visible" + sfx: None, "corner_ids" + sfx: [], "n_visible" + sfx: 0})
-            else:
-                T = T_ci_cam0 @ view.T_cam_board
-                if view.kind == "blurred" and not sfx:
-                    streak = float(vrng.uniform(*blur_streak)) * cam.width
-                    angle = float(vrng.uniform(0, np.pi))
-                    entry.update(motion_blur_px=round(streak, 4), motion_blur_angle_deg=round(np.degrees(angle), 4))
-                img = renderer.render(T, vrng, warp=warp, gain=view.gain, motion_blur_px=streak, motion_angle=angle)
-                uv, vis = board_truth_pixels(cam, spec, T)
-                entry.update({"T_cam_board" if not sfx else "T_cam1_board": np.round(T, 12).tolist(),
-                              "corners_uv" + sfx: _nan_to_none(uv), "visible" + sfx: vis.tolist(),
-                              "corner_ids" + sfx: np.nonzero(vis)[0].tolist(), "n_visible" + sfx: int(vis.sum())})
-                if warp is not None:
-                    uv_a, _ = board_truth_pixels(cam, spec, T, warp=warp)
-                    entry["corners_uv_actual" + sfx] = _nan_to_none(uv_a)
-                    entry["bad_displacement_px_max" + sfx] = round(float(np.nanmax(np.linalg.norm(uv_a - uv, axis=1))), 4)
-            ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, 3])
-            data = buf.tobytes()
-            if view.kind == "corrupt":
-                data = data[: max(64, len(data) // 3)]
-            (out / (prefix + name)).write_bytes(data)
-            entry["crc32" + sfx] = format(zlib.crc32(data) & 0xFFFFFFFF, "08x")
-        entries.append(_ordered_entry(entry))
+        seeds = (view_seeds[order[i]], stereo_seeds[order[i]] if stereo is not None else None)
+        entries.append(_ordered_entry(_write_view(out, f"img_{i:03d}.png", all_views[order[i]], rigs, seeds, spec, bad_px, blur_streak)))
 
-    def file_lists(key: str) -> dict:
-        kinds = ("full", "partial", "bad", "blurred", "blank", "corrupt")
-        lists = {"all": [e[key] for e in entries],
-                 "board": [e[key] for e in entries if e["kind"] in ("full", "partial", "bad", "blurred")]}
-        lists.update({k: [e[key] for e in entries if e["kind"] == k] for k in kinds})
-        return lists
-
-    truth = {
-        "format": TRUTH_FORMAT,
-        "seed": int(seed),
-        "command": command,
-        "model": model_name(camera),
-        "camera": camera.to_dict(),
-        "image_size": list(camera.image_size),
-        "K": camera.K.tolist(),
-        "dist": camera.dist.tolist(),
-        "board": spec.to_dict(),
-        "object_points": obj.tolist(),
-        "render": settings.to_dict(),
-        "noise": {"image_noise_sigma_dn": settings.noise_sigma, "blur_sigma_px": settings.blur_sigma,
-                  "vignetting": settings.vignetting, "supersample": settings.supersample},
-        "coverage": coverage,
-        "files": file_lists("file"),
-        "views": entries,
-    }
+    truth = _truth_document(entries, seed, command, camera, spec, obj, settings, coverage)
     if video_seconds > 0:
         keyviews = [j for j, v in enumerate(views) if v.kind == "full"] or list(range(len(views)))
         if keyviews:
@@ -162,7 +174,7 @@ def write_board_set(out_dir: str | os.PathLike, camera: Camera, spec: BoardSpec,
     if stereo is not None:
         cam1, T10 = rigs[1][0], rigs[1][1]
         truth["stereo"] = {"model1": model_name(cam1), "camera1": cam1.to_dict(), "T_cam1_cam0": np.round(T10, 12).tolist(),
-                           "baseline_m": round(float(np.linalg.norm(invert_T(T10)[:3, 3])), 12), "files1": file_lists("file_cam1")}
+                           "baseline_m": round(float(np.linalg.norm(invert_T(T10)[:3, 3])), 12), "files1": _file_lists(entries, "file_cam1")}
     tmp = out / "truth.json.tmp"
     tmp.write_text(json.dumps(truth, indent=1) + "\n")
     tmp.replace(out / "truth.json")
