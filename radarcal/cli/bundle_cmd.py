@@ -40,7 +40,7 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 @app.command()
-def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool = JsonOpt) -> None:
+def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: JsonOpt = False) -> None:
     """Print what the bundle holds."""
     b = load_bundle(bundle)
 
@@ -65,7 +65,7 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool 
 
 
 @app.command()
-def validate(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool = JsonOpt) -> None:
+def validate(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: JsonOpt = False) -> None:
     """Load and check the bundle; exit 0 when valid, 2 with the offending field otherwise."""
     b = load_bundle(bundle)
     summary = {"ok": True, "path": str(bundle), "cameras": sorted(b.cameras), "transforms": sorted(b.transforms)}
@@ -79,7 +79,7 @@ def import_(
     camera: str = typer.Option(..., "--camera", help="Name of the camera in the bundle, e.g. cam0."),
     select: str = typer.Option(None, "--select", help="Camera inside a multi-camera file (Kalibr cam1; OpenCV stereo 'left'/'right' = M1/D1 or M2/D2)."),
     image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT, for files that do not record it (OpenCV stereo_calib output)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Import camera intrinsics from another tool's file."""
     size = _parse_size(image_size) if image_size else None
@@ -97,7 +97,7 @@ def export(
     camera: str = typer.Option(..., "--camera"),
     fmt: str = typer.Option("ros", "--format", help=f"One of: {', '.join(EXPORT_FORMATS)}."),
     out: Path = typer.Option(None, "-o", "--output", help="Output file (stdout if omitted)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Export one camera's intrinsics for another tool (--json: {camera, format, output, text} on stdout)."""
     if fmt not in EXPORT_FORMATS:
@@ -122,7 +122,7 @@ def set_transform(
     target: str = typer.Argument(..., help="Target frame a of T_a_b (e.g. cam0)."),
     source: str = typer.Argument(..., help="Source frame b of T_a_b (e.g. lidar0)."),
     file: Path = typer.Argument(..., help="4x4 as JSON or text, or 'x y z roll pitch yaw' (m, deg)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Store T_target_source (maps points in SOURCE into TARGET) from a file."""
     if target == source:

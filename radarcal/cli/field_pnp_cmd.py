@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.common import BundleOpt, JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
 
 __all__ = ["field_pnp"]
@@ -32,7 +32,7 @@ def _table(em, which: str) -> list[str]:
 
 
 def field_pnp(
-    bundle: Path = typer.Option(..., "--bundle", "-b", help="Calibration bundle with the camera's intrinsics (updated)."),
+    bundle: BundleOpt = ...,
     camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
     field: str = typer.Option(None, "--field", help="Built-in field (rmuc2024) or a YAML/JSON field file [default: the bundle's field, else rmuc2024]."),
     points: Path = typer.Option(None, "--points", help="picks.csv with name,u,v rows (written by the picker when --image is given and the file does not exist)."),
@@ -49,7 +49,7 @@ def field_pnp(
     overlay: Path = typer.Option(None, "--overlay", help="With --image: write the image with the field outline, raised areas and all landmarks projected by the solved pose."),
     depth: str = typer.Option("auto", "--depth", help="Depth source for the printed map: auto (LiDAR if one is chained to the camera) | lidar | ground."),
     lidar: str = typer.Option(None, "--lidar", help="LiDAR sensor name (default: any LiDAR chained to the camera)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Solve the camera's pose on the field from clicked landmarks; write T_<camera>_field and an error map."""
     from radarcal.bundle import Provenance, hash_inputs, load_bundle, save_bundle

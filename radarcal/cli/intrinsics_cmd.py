@@ -186,7 +186,7 @@ def intrinsics(
     dictionary: str = typer.Option("DICT_4X4_1000", "--dict", help="ChArUco ArUco dictionary."),
     layout: str = typer.Option("auto", "--layout", help="ChArUco layout: auto | new | legacy."),
     camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
-    bundle: Path = BundleOpt,
+    bundle: BundleOpt = ...,
     model: str = typer.Option("pinhole5", "--model", help="auto | pinhole5 | pinhole8 (rational) | fisheye (equidistant)."),
     stereo: bool = typer.Option(False, "--stereo", help="Stereo: SOURCE are the left images, --right the right ones."),
     right: list[str] = typer.Option(None, "--right", help="Right-camera images/folder/glob (repeatable); implies --stereo."),
@@ -196,7 +196,7 @@ def intrinsics(
     novelty: float = typer.Option(0.0, "--novelty", help="ROS novelty gate for still images (L1 in X/Y/Size/Skew; 0 = keep all). Videos always use 0.2."),
     no_crossval: bool = typer.Option(False, "--no-crossval", help="Skip the split-halves cross-validation."),
     k_sigma: float = typer.Option(4.0, "--k-sigma", help="Corner outlier threshold in σ."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Calibrate camera intrinsics from chessboard / ChArUco views (and T_cam1_cam0 with --right)."""
     layouts = {"auto": None, "new": False, "legacy": True}

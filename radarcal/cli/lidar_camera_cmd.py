@@ -10,7 +10,7 @@ import typer
 
 from radarcal import geometry
 from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle
-from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.common import BundleOpt, CloudTopicOpt, JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
 from radarcal.extrinsics.lidar_camera_session import LidarCameraSession
 
@@ -30,12 +30,12 @@ def _pair_list(text: str | None, n: int, what: str) -> tuple[float, ...] | None:
 
 
 def lidar_camera(
-    bundle: Path = typer.Option(..., "--bundle", "-b", help="Calibration bundle (YAML); must hold the camera's intrinsics."),
+    bundle: BundleOpt = ...,
     camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
     lidar: str = typer.Option("lidar0", "--lidar", help="LiDAR name (frame) in the bundle."),
     images: list[Path] = typer.Option([], "--image", help="Image (raw, distorted); repeat for several scenes, paired in order with --cloud."),
     clouds: list[Path] = typer.Option([], "--cloud", help="Point cloud (PCD/PLY/KITTI .bin/.npy) in the LiDAR frame, or a ROS bag whose clouds (one topic) are merged; one per --image."),
-    cloud_topic: str = typer.Option(None, "--cloud-topic", help="Bag topic of the clouds (needed when a --cloud bag has several cloud topics)."),
+    cloud_topic: CloudTopicOpt = None,
     init: Path = typer.Option(None, "--init", help="Initial T_cam_lidar: 4x4 JSON/text or 'x y z roll pitch yaw' (m, deg)."),
     corners: Path = typer.Option(None, "--corners", help="Manual correspondences CSV x,y,z,u,v[,view]."),
     board: str = typer.Option(None, "--board", help="Board size WIDTH,HEIGHT in m: detect boards in the clouds (RANSAC plane, rectangle, 4 corners)."),
@@ -54,7 +54,7 @@ def lidar_camera(
     rotation_only: bool = typer.Option(False, "--rotation-only", help="Refine the rotation only (translation measured elsewhere)."),
     overlay: Path = typer.Option(None, "--overlay", help="Write the first cloud over the first image, before | after (PNG)."),
     force: bool = typer.Option(False, "--force", help="Store the result even when the refinement did not converge."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Calibrate T_cam_lidar: manual corners / boards (PnP) and/or targetless edge refinement."""
     from radarcal.extrinsics import lidar_camera as lc

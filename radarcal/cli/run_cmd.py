@@ -6,18 +6,18 @@ from pathlib import Path
 
 import typer
 
-from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.common import BundleOpt, CloudTopicOpt, JsonOpt, ReplayBundleOpt, command_line, emit, err_console
 from radarcal.errors import InputError
 
 __all__ = ["run", "hero_offset", "compute_hero_offset"]
 
 
 def run(
-    bundle: Path = typer.Option(None, "--bundle", "-b", help="Calibration bundle (default: calib.yaml inside --replay)."),
+    bundle: ReplayBundleOpt = None,
     replay: Path = typer.Option(None, "--replay", help="Replay folder (images/, clouds/, detections.jsonl) as written by `radarcal synth field`."),
     video: str = typer.Option(None, "--video", help="Camera: video file, image folder, device index or URL."),
     clouds: str = typer.Option(None, "--clouds", help="LiDAR: folder of PCD/npy/bin, ROS1/ROS2 bag, or livox://HOST:PORT (Livox SDK1 UDP)."),
-    cloud_topic: str = typer.Option(None, "--cloud-topic", help="Bag topic (default: every Livox CustomMsg / PointCloud2 topic)."),
+    cloud_topic: CloudTopicOpt = None,
     cloud_offset: str = typer.Option("0", "--cloud-time-offset", help="Camera clock minus LiDAR clock, seconds (t_camera = t_cloud + offset; 0: one clock, e.g. a replay "
                                      "or a bag with both topics), or 'first': the first cloud pairs with the first frame."),
     detector: Path = typer.Option(None, "--detector", help="YOLOv5-style ONNX model."),
@@ -36,7 +36,7 @@ def run(
     max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
     from radarcal.bundle import load_bundle
@@ -155,13 +155,13 @@ def compute_hero_offset(measured_m: float, actual_m: float) -> float:
 
 
 def hero_offset(
-    bundle: Path = typer.Option(..., "--bundle", "-b", help="Calibration bundle to update."),
+    bundle: BundleOpt = ...,
     measured: float = typer.Option(None, "--measured", help="Hero -> enemy outpost distance radarcal reported (m, without offset)."),
     actual: float = typer.Option(None, "--actual", help="The true distance (m)."),
     replay: Path = typer.Option(None, "--replay", help="Instead of --measured: a short recording (replay folder) with our hero standing at a known point."),
     marker: str = typer.Option(None, "--marker", help="With --replay, instead of --actual: the field landmark the hero stands at."),
     team: str = typer.Option(None, "--team", help="Our colour red|blue (default: bundle runtime.team)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Store the per-match hero range offset (actual - measured) in the bundle (runtime.hero_range_offset_m)."""
     import math

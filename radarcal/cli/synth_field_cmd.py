@@ -38,7 +38,7 @@ def synth_field(
     image_every: int = typer.Option(1, "--image-every", help="Write an image for every k-th frame only (smaller replay; detections/truth stay per frame)."),
     det_jitter: float = typer.Option(0.0, "--det-jitter", help="σ (px) of jitter on detection box edges."),
     det_dropout: float = typer.Option(0.0, "--det-dropout", help="Probability of a missed detection per robot and frame."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Generate a RoboMaster field replay: images, LiDAR clouds, detections, truth, calib.yaml."""
     from radarcal.field import load_field
