@@ -6,7 +6,7 @@ STAMP := $(VENV)/.radarcal-installed
 export MPLBACKEND := Agg
 export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
-.PHONY: demo test test-slow bench install sysdeps clean notebooks
+.PHONY: demo test test-slow lint bench install sysdeps clean notebooks
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -30,6 +30,9 @@ demo: $(STAMP) sysdeps
 
 test: $(STAMP) sysdeps
 	$(PY) -m pytest -q
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
 
 test-slow: $(STAMP) sysdeps
 	$(PY) -m pytest -q -m slow

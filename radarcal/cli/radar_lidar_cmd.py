@@ -15,14 +15,14 @@ from radarcal.errors import InputError
 
 def radar_lidar(
     session: Path = typer.Argument(..., help="Session folder: rig.yaml + scenes/<k>/{<lidar>.pcd, radar.csv}."),
-    bundle: Path = BundleOpt,
+    bundle: BundleOpt = ...,
     model: str = typer.Option("slant", "--model", help="slant (mounting heights + ground plane, default) or planar (the patent's: z dropped)."),
     gate: float = typer.Option(0.35, "--gate", help="Matching gate (m) between radar detections and reflectors."),
     outlier: float = typer.Option(0.15, "--outlier", help="Reject a reflector whose hold-out residual exceeds this (m) and 4x the others' scale."),
     joint: bool = typer.Option(True, "--joint/--no-joint", help="Joint refinement of all radars at once."),
     lidar_method: str = typer.Option("gicp", "--lidar-method", help="LiDAR-LiDAR registration: gicp or point_to_plane."),
     voxel: float = typer.Option(0.1, "--voxel", help="Finest voxel size (m) of the LiDAR-LiDAR registration."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Radar <-> radar, LiDAR <-> radar (corner reflectors) and LiDAR <-> LiDAR (GICP) into one bundle."""
     from radarcal.extrinsics.radar_lidar import build_scene_obs, calibrate_rig

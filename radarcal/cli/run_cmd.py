@@ -6,7 +6,7 @@ from pathlib import Path
 
 import typer
 
-from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.common import BundleOpt, CloudTopicOpt, JsonOpt, ReplayBundleOpt, command_line, emit, err_console
 from radarcal.cli.outputs import check_outputs
 from radarcal.cli.run_checks import HERO_MAX_SPREAD_M, check_serial_port, check_season, hero_spread_problem, run_warnings
 from radarcal.errors import InputError
@@ -15,12 +15,13 @@ __all__ = ["run", "hero_offset", "compute_hero_offset"]
 
 
 def run(
-    bundle: Path = typer.Option(None, "--bundle", "-b", help="Calibration bundle (default: calib.yaml inside --replay)."),
+    bundle: ReplayBundleOpt = None,
     replay: Path = typer.Option(None, "--replay", help="Replay folder (images/, clouds/, detections.jsonl) as written by `radarcal synth field`."),
     video: str = typer.Option(None, "--video", help="Camera: video file, image folder, device index or URL."),
     clouds: str = typer.Option(None, "--clouds", help="LiDAR: folder of PCD/npy/bin, ROS1/ROS2 bag, or livox://HOST:PORT (Livox SDK1 UDP)."),
-    cloud_topic: str = typer.Option(None, "--cloud-topic", help="Bag topic (default: every Livox CustomMsg / PointCloud2 topic)."),
-    cloud_offset: float = typer.Option(0.0, "--cloud-time-offset", help="Seconds added to cloud times before pairing with frames."),
+    cloud_topic: CloudTopicOpt = None,
+    cloud_offset: str = typer.Option("0", "--cloud-time-offset", help="Camera clock minus LiDAR clock, seconds (t_camera = t_cloud + offset; 0: one clock, e.g. a replay "
+                                     "or a bag with both topics), or 'first': the first cloud pairs with the first frame."),
     detector: Path = typer.Option(None, "--detector", help="Robot detector ONNX (YOLOv5, YOLOv8/YOLO11/YOLOv12, end-to-end or raw heads)."),
     names: Path = typer.Option(None, "--names", help="Robot class names: YOLO data.yaml, text file, JSON/YAML list (default: the model's metadata)."),
     detector_layout: str = typer.Option(None, "--detector-layout", help="Output layout yolov5|yolov8|end2end|raw (default: from the graph)."),
@@ -45,7 +46,7 @@ def run(
     max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
     from radarcal.bundle import load_bundle
@@ -60,6 +61,7 @@ def run(
         raise InputError("radarcal run", "give at most one of --detector and --detections")
     if team is not None and team not in ("red", "blue"):
         raise InputError("--team", f"expected red or blue, got {team!r}")
+    offset = _cloud_offset(cloud_offset)
     rep = open_replay(replay) if replay is not None else None
     if bundle is None:
         if rep is None or rep.bundle is None:
@@ -117,7 +119,7 @@ def run(
         link = SerialLink(serial, season=cfg.season).start()
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     try:
-        summary = run_loop(pipe, merge_by_time(frames, cloud_src, cloud_offset), detect, out, minimap, link, status=not quiet and not as_json,
+        summary = run_loop(pipe, merge_by_time(frames, cloud_src, offset), detect, out, minimap, link, status=not quiet and not as_json,
                            max_frames=max_frames, on_frame=evaluator)  # fmt: skip
     finally:
         if link is not None:
@@ -127,9 +129,9 @@ def run(
         if cloud_src is not None and hasattr(cloud_src, "close"):
             cloud_src.close()
     summary.pop("results")
-    from radarcal.runtime.sources import SKIPPED
-
-    summary["skipped_inputs"] = len(SKIPPED)
+    skipped = getattr(cloud_src, "skipped", None)
+    summary["skipped_inputs"] = skipped.total if skipped is not None else 0
+    summary["skipped_by_reason"] = dict(skipped.counts) if skipped is not None else {}
     if evaluator is not None:
         summary["accuracy"] = evaluator.summary()
     summary.update({"bundle": str(bundle), "camera": cam_name, "lidar": lidar_name if has_clouds else None, "out": str(out) if out else None,
@@ -195,13 +197,28 @@ def _open_detector(detector, names, layout, anchors, armour, armour_names, numbe
     return DetectAhead(Recogniser(robot, arm, num))
 
 
+def _cloud_offset(text: str) -> float | str:
+    """``--cloud-time-offset``: seconds, or ``first``."""
+    import math
+
+    if text.strip().lower() == "first":
+        return "first"
+    try:
+        v = float(text)
+    except ValueError:
+        v = math.nan
+    if not math.isfinite(v):
+        raise InputError("--cloud-time-offset", f"expected seconds or 'first', got {text!r}")
+    return v
+
+
 def compute_hero_offset(measured_m: float, actual_m: float) -> float:
     """The fixed per-match correction: actual - measured (added to every later hero range)."""
     return float(actual_m) - float(measured_m)
 
 
 def hero_offset(
-    bundle: Path = typer.Option(..., "--bundle", "-b", help="Calibration bundle to update."),
+    bundle: BundleOpt = ...,
     measured: float = typer.Option(None, "--measured", help="Hero -> enemy outpost distance radarcal reported (m, without offset)."),
     actual: float = typer.Option(None, "--actual", help="The true distance (m)."),
     replay: Path = typer.Option(None, "--replay", help="Instead of --measured: a short recording (replay folder) with our hero standing at a known point."),
@@ -209,7 +226,7 @@ def hero_offset(
     team: str = typer.Option(None, "--team", help="Our colour red|blue (default: bundle runtime.team)."),
     max_spread: float = typer.Option(HERO_MAX_SPREAD_M, "--max-spread", help="With --replay: refuse when the hero range spreads more than this (m, 10-90 %) over the recording."),
     force: bool = typer.Option(False, "--force", help="Store the offset even when the recording's hero range spread says the hero moved."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Store the per-match hero range offset (actual - measured) in the bundle (runtime.hero_range_offset_m)."""
     import math
@@ -234,11 +251,9 @@ def hero_offset(
     if replay is not None:
         measured, extra = _hero_range_from_recording(b, replay, team)
         if marker is not None:
-            from radarcal.field import FieldModel
-
-            if not b.field_model:
+            fm = b.field()
+            if fm is None:
                 raise InputError(bundle, "no field model in the bundle (needed for --marker)")
-            fm = FieldModel.from_dict(b.field_model, bundle)
             enemy = "blue" if team == "red" else "red"
             for name in (marker, f"{enemy}_outpost"):
                 if name not in fm.landmarks:

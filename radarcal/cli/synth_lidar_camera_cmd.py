@@ -27,7 +27,7 @@ def synth_lidar_camera(
     init_deg: float = typer.Option(3.0, "--init-deg", help="Rotation error of the initial guess written to init.json (deg)."),
     init_m: float = typer.Option(0.10, "--init-m", help="Translation error of the initial guess (m)."),
     supersample: int = typer.Option(2, "--supersample", help="Rays per pixel side for anti-aliasing."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Generate a structured scene seen by a Livox-like LiDAR and a distorted 1280x1024 camera, with known T_cam_lidar."""
     from radarcal.synth.lidar_camera import LidarCameraSceneParams, render_lidar_camera_scene, write_lidar_camera_scene

@@ -25,7 +25,7 @@ def synth_radar(
     extra_lidars: int = typer.Option(0, "--extra-lidars", help="Extra LiDARs (0-2: left, right) for LiDAR-LiDAR registration."),
     bad_reflector: float = typer.Option(0.0, "--bad-reflector", help="Displace every radar return of one reflector by this (m)."),
     heights: str = typer.Option("0.55,0.50,0.60", "--radar-heights", help="Mounting heights of the left,middle,right radars (m)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Vehicle with a front LiDAR, left/middle/right 2D radars and corner reflectors on tripods."""
     from radarcal.synth.radar import RadarRigSpec, RadarSceneSpec, _default_extra_lidars, _default_radars, generate_radar_session, write_radar_session

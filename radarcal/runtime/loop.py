@@ -20,6 +20,7 @@ import numpy as np
 from radarcal.bundle import Bundle
 from radarcal.errors import InputError
 from radarcal.runtime import referee as rp
+from radarcal.runtime.config import RunConfig
 from radarcal.runtime.detector import Detection
 from radarcal.runtime.fusion import CloudQueue, SurfaceFilter
 from radarcal.runtime.localise import Localiser
@@ -28,45 +29,6 @@ from radarcal.runtime.tracks import TrackManager
 __all__ = ["RunConfig", "RobotOut", "FrameResult", "Pipeline", "Minimap", "StageTimer", "run", "pick_frames", "evaluate_tracks", "OnlineEvaluator", "limit_blas_threads"]
 
 STAGES = ("cloud", "detect", "depth", "localise", "track", "output")
-
-
-@dataclass
-class RunConfig:
-    team: str = "red"  # our colour; the referee link (0x0201) overrides it when connected
-    season: int = 2024
-    robot_radius_m: float = 0.27
-    visible_depth_factor: float = 0.85
-    cloud_queue_points: int = 200_000
-    cloud_queue_age_s: float = 1.0
-    depth_max_age_s: float = 0.5  # oldest cloud a box depth may come from (robots move ~1.5 m/s)
-    min_score: float = 0.25
-    max_coast_s: float = 1.0
-    accel_sigma: float = 3.0
-    sentry_xy: tuple[float, float] | None = None  # fixed sentry position when it is not tracked
-    sentry_cmd_id: int = 0x0200  # robot-to-robot sub-id of the sentry guidance message
-    hero_cmd_id: int = 0x0201  # robot-to-robot sub-id of the hero range message
-    hero_range_offset_m: float = 0.0
-    surface_filter: bool = True  # drop LiDAR returns from the field surface before box depth
-    surface_min_height_m: float = 0.08
-
-    @classmethod
-    def from_bundle(cls, bundle: Bundle, **overrides) -> "RunConfig":
-        rt = bundle.runtime or {}
-        cfg = cls(
-            season=int(rt.get("referee_season", 2024)),
-            robot_radius_m=float(rt.get("robot_radius_m", cls.robot_radius_m)),
-            cloud_queue_points=int(rt.get("cloud_queue_points", cls.cloud_queue_points)),
-            cloud_queue_age_s=float(rt.get("cloud_queue_age_s", cls.cloud_queue_age_s)),
-            depth_max_age_s=float(rt.get("depth_max_age_s", cls.depth_max_age_s)),
-            hero_range_offset_m=float(rt.get("hero_range_offset_m", 0.0)),
-            team=str(rt.get("team", "red")),
-        )
-        if rt.get("sentry_xy") is not None:
-            cfg.sentry_xy = tuple(float(v) for v in rt["sentry_xy"])[:2]  # type: ignore[assignment]
-        for k, v in overrides.items():
-            if v is not None:
-                setattr(cfg, k, v)
-        return cfg
 
 
 @dataclass
@@ -124,19 +86,16 @@ class Pipeline:
         self.cfg = cfg
         self.camera = bundle.camera(camera)
         self.T_field_cam = bundle.T("field", camera)
-        self.field_model = None
-        if bundle.field_model:
-            from radarcal.field import FieldModel
-
-            self.field_model = FieldModel.from_dict(bundle.field_model, bundle.path)
+        self.field_model = bundle.field()
         self.queue = None
         if lidar is not None:
+            T_cam_lidar = bundle.T(camera, lidar)  # solved once; the queue transforms each cloud once (camera + field rows)
             flt = None
             if cfg.surface_filter:
                 surf = self.field_model.surface_z if self.field_model is not None else None
                 structs = getattr(self.field_model, "structures", None) if self.field_model is not None else None
-                flt = SurfaceFilter(self.T_field_cam @ bundle.T(camera, lidar), surf, min_height=cfg.surface_min_height_m, structures=structs)
-            self.queue = CloudQueue(self.camera, bundle.T(camera, lidar), cfg.cloud_queue_points, cfg.cloud_queue_age_s, point_filter=flt)
+                flt = SurfaceFilter(self.T_field_cam @ T_cam_lidar, surf, min_height=cfg.surface_min_height_m, structures=structs)
+            self.queue = CloudQueue(self.camera, T_cam_lidar, cfg.cloud_queue_points, cfg.cloud_queue_age_s, point_filter=flt)
         self.localiser = Localiser(self.camera, self.T_field_cam, self.field_model, cfg.robot_radius_m, cfg.visible_depth_factor)
         self.tracks = TrackManager(accel_sigma=cfg.accel_sigma, max_coast_s=cfg.max_coast_s)
         self.clouds_in = 0

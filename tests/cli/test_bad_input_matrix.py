@@ -17,7 +17,7 @@ import json
 import os
 import shutil
 import stat
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -119,7 +119,7 @@ def _commands() -> dict:
     import typer
 
     root = typer.main.get_command(app)
-    out: dict[str, click.Command] = {}
+    out: dict = {}
 
     def walk(cmd, prefix):
         if hasattr(cmd, "commands"):  # a group (typer may vendor its own click: no isinstance)

@@ -129,7 +129,7 @@ def test_malformed_boxes_are_dropped(replay):
 
     b = load_bundle(replay.bundle)
     pipe = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b))
-    pipe.add_cloud(0.0, next(replay.cloud_frames()).points)
+    pipe.add_cloud(0.0, next(iter(replay.cloud_frames())).points)
     bad = [Detection(np.array([np.nan, 1, 2, 3]), "blue_1", 0.9), Detection(np.array([50, 50, 10, 10]), "blue_2", 0.9),
            Detection(np.array([1, 2, 3]), "blue_3", 0.9), Detection(np.array([600, 300, 640, 340.0]), "blue_4", float("nan")),
            Detection(np.array([600, 300, 640, 340.0]), "blue_7", 0.9)]  # fmt: skip
