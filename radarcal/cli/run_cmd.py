@@ -35,6 +35,8 @@ def run(
     max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
+    ui: str = typer.Option(None, "--ui", help="Serve the live operator console on [HOST:]PORT (default host 127.0.0.1; docs/console.md)."),
+    speed: float = typer.Option(None, "--speed", help="Replay at this multiple of real time (default: 1 with --ui, else as fast as possible; 0 = unpaced)."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
@@ -94,10 +96,22 @@ def run(
 
         link = SerialLink(serial, season=cfg.season).start()
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
+    pairs, on_frame, console = merge_by_time(frames, cloud_src, cloud_offset), evaluator, None
+    if ui is not None or speed:
+        from radarcal.runtime.console.live import chain_callbacks, paced, start_console
+
+        pairs = paced(pairs, speed if speed is not None else 1.0) if rep is not None else pairs
+        if ui is not None:
+            console = start_console(ui, pipe, b, cam_name, lidar_name if has_clouds else None, {"camera": cam_name, "team": cfg.team, "hero_range_offset_m": cfg.hero_range_offset_m})
+            pairs, detect, on_frame = console.observe_pairs(pairs), console.observe_detect(detect), chain_callbacks(evaluator, console.on_frame)
+            for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None))):
+                if callable(src):
+                    console.add_health(name, src)
     try:
-        summary = run_loop(pipe, merge_by_time(frames, cloud_src, cloud_offset), detect, out, minimap, link, status=not quiet and not as_json,
-                           max_frames=max_frames, on_frame=evaluator)  # fmt: skip
+        summary = run_loop(pipe, pairs, detect, out, minimap, link, status=not quiet and not as_json, max_frames=max_frames, on_frame=on_frame)
     finally:
+        if console is not None:
+            console.server.close()
         if link is not None:
             link.close()
         if cloud_src is not None and hasattr(cloud_src, "close"):
