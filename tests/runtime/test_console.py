@@ -243,3 +243,27 @@ def test_console_in_chromium_follows_the_replay(browser, screenshot, tmp_path):
 
     img = cv2.imread(str(shot))
     assert img is not None and img.shape[0] > 500 and img.std() > 20
+
+
+def test_cli_bad_ui_arguments_are_one_line_errors(tmp_path, capsys):
+    import socket
+
+    from radarcal.cli.main import main
+
+    assert main(["run", "--replay", str(SAMPLE), "--ui", "nonsense", "--quiet"]) == 2
+    assert "error: --ui: expected [HOST:]PORT" in capsys.readouterr().err
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", 0))
+    busy.listen()
+    try:
+        assert main(["run", "--replay", str(SAMPLE), "--ui", str(busy.getsockname()[1]), "--quiet", "--out", str(tmp_path / "t.jsonl")]) == 2
+        assert "error: --ui: cannot listen on 127.0.0.1:" in capsys.readouterr().err
+    finally:
+        busy.close()
+    assert not (tmp_path / "t.jsonl").exists()  # stopped before the loop wrote anything
+    b = tmp_path / "b.yaml"
+    b.write_bytes((SAMPLE / "calib.yaml").read_bytes())
+    before = b.read_bytes()
+    assert main(["field-pnp", "-b", str(b), "--ui", "0"]) == 2
+    assert "error: --ui: needs --image" in capsys.readouterr().err
+    assert b.read_bytes() == before
