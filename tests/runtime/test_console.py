@@ -193,7 +193,7 @@ def _table_rows(driver) -> tuple[str, list[list[str]]]:
 
 @pytest.mark.skipif(not (SAMPLE / "meta.json").is_file(), reason="datasets/sample_replay missing")
 def test_console_in_chromium_follows_the_replay(browser, screenshot, tmp_path):
-    p, url, token = _start_run(tmp_path, ["--max-frames", "180"])
+    p, url, token = _start_run(tmp_path, ["--max-frames", "240"])
     msg = shot = None
     try:
         browser.get(url + "#token=" + token)
@@ -203,9 +203,9 @@ def test_console_in_chromium_follows_the_replay(browser, screenshot, tmp_path):
         while time.time() < t_end and p.poll() is None:
             time.sleep(0.3)
             samples.append(_table_rows(browser))
-            if len(samples) == 6:  # the operator's trigger, from the page with the token of this run
+            if len(samples) == 3:  # the operator's trigger, from the page with the token of this run
                 browser.find_element("id", "dvbtn").click()
-            if len(samples) == 9:
+            if len(samples) == 6:
                 msg = browser.find_element("id", "actionmsg").text
                 shot = screenshot(browser, "console_live")
             stats = browser.execute_script("return window.__console;")
@@ -216,9 +216,10 @@ def test_console_in_chromium_follows_the_replay(browser, screenshot, tmp_path):
     log = stats["log"]
     span = (log[-1]["shown"] - log[0]["shown"]) / 1e3
     rate = (len(log) - 1) / span
-    lat = np.array([e["latency"] for e in log])
+    lat_all = np.array([e["latency"] for e in log])
+    lat = np.array([e["latency"] for e in log if e["shown"] > log[0]["shown"] + 1000])  # steady state: after the page's first second
     print(f"\nconsole: {len(log)} updates over {span:.1f} s = {rate:.1f} Hz; frame -> page latency median {np.median(lat):.0f} ms, "
-          f"p95 {np.percentile(lat, 95):.0f} ms, max {lat.max():.0f} ms")  # fmt: skip
+          f"p95 {np.percentile(lat, 95):.0f} ms, max {lat.max():.0f} ms (first second included: p95 {np.percentile(lat_all, 95):.0f} ms)")  # fmt: skip
     assert rate >= 10.0
     assert np.percentile(lat, 95) < 200.0 and np.median(lat) < 100.0
     # the robot table matches what the loop wrote to tracks.jsonl for the frame it shows
@@ -267,3 +268,26 @@ def test_cli_bad_ui_arguments_are_one_line_errors(tmp_path, capsys):
     assert main(["field-pnp", "-b", str(b), "--ui", "0"]) == 2
     assert "error: --ui: needs --image" in capsys.readouterr().err
     assert b.read_bytes() == before
+
+
+def test_the_controls_are_held_while_the_page_is_open():
+    import socket
+
+    srv = WebServer("127.0.0.1", 0, log=lambda s: None, hold_s=0.3)
+    srv.start()
+    try:
+        tok = {"X-Radarcal-Token": srv.token}
+        sess = _req(srv.url + "api/claim", "POST", {}, tok)[1]["session"]
+        page = socket.create_connection(("127.0.0.1", srv.port))  # the first page's hold stream
+        page.sendall(f"GET /api/hold?session={sess} HTTP/1.1\r\nHost: 127.0.0.1:{srv.port}\r\n\r\n".encode())
+        assert b"200" in page.recv(200)
+        time.sleep(0.6)  # idle longer than hold_s, but its page is open
+        assert _req(srv.url + "api/claim", "POST", {}, tok)[0] == 409
+        page.close()  # the page is gone: after hold_s a new page (reload) may take the controls
+        time.sleep(3.0)  # the server notices within two pings (1 s apart)
+        st, j = _req(srv.url + "api/claim", "POST", {}, tok)
+        assert st == 200 and j["session"] != sess
+        # the old session is dead
+        assert _req(srv.url + "api/action/x", "POST", {"session": sess, "seq": 5}, tok)[0] == 404  # unknown action first
+    finally:
+        srv.close()

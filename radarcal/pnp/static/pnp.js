@@ -12,12 +12,14 @@ const m = /token=([^&]+)/.exec(location.hash || "");
 if (m) { sessionStorage.setItem("radarcal-token", decodeURIComponent(m[1])); history.replaceState(null, "", location.pathname); }
 const token = sessionStorage.getItem("radarcal-token") || "";
 let session = null, seq = 0, busy = false, again = false;
+let holdES = null;
+function hold() { if (holdES) holdES.close(); holdES = new EventSource("api/hold?session=" + encodeURIComponent(session) + (token ? "&token=" + encodeURIComponent(token) : "")); }
 async function post(name, args) {
   if (!session) {
     const r = await fetch("api/claim", { method: "POST", headers: { "X-Radarcal-Token": token }, body: "{}" });
     const j = await r.json();
     if (!r.ok) throw new Error(j.error || r.statusText);
-    session = j.session;
+    session = j.session; hold();
   }
   const r = await fetch("api/action/" + name, { method: "POST", headers: { "X-Radarcal-Token": token, "Content-Type": "application/json" },
     body: JSON.stringify({ session: session, seq: ++seq, args: args }) });

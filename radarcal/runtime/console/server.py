@@ -142,6 +142,12 @@ class WebServer:
         self.port = self.httpd.server_address[1]
         self.loopback = is_loopback(host)
         self._thread: threading.Thread | None = None
+        self.streams["/api/hold"] = self._hold_stream  # a page with the controls keeps this open: the session is held
+
+    def _hold_stream(self, write, q: dict, alive) -> None:
+        while alive():
+            write("ping", "{}")
+            self._stop.wait(1.0)  # a closed page is noticed at the second write after it went
 
     # --- lifecycle --------------------------------------------------------------------------------------------------
     @property

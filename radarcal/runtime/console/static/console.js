@@ -17,13 +17,15 @@ function tokenFromHash() {
 let token = tokenFromHash(), session = null, seq = 0;
 $("token").value = token;
 $("token").addEventListener("change", () => { token = $("token").value.trim(); sessionStorage.setItem("radarcal-token", token); session = null; });
+let holdES = null;
+function hold() { if (holdES) holdES.close(); holdES = new EventSource("api/hold?session=" + encodeURIComponent(session) + (token ? "&token=" + encodeURIComponent(token) : "")); }
 async function action(name, args) {
   if (!token) throw new Error("no token: paste the token printed on the terminal");
   if (!session) {
     const r = await fetch("api/claim", { method: "POST", headers: { "X-Radarcal-Token": token, "Content-Type": "application/json" }, body: "{}" });
     const j = await r.json();
     if (!r.ok) throw new Error(j.error || r.statusText);
-    session = j.session; seq = 0;
+    session = j.session; seq = 0; hold();
   }
   const r = await fetch("api/action/" + name, { method: "POST", headers: { "X-Radarcal-Token": token, "Content-Type": "application/json" },
     body: JSON.stringify({ session: session, seq: ++seq, args: args || {} }) });
