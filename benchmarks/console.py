@@ -38,7 +38,7 @@ def _one_run(console_client: str | None, speed: float = 0.0) -> tuple[float, dic
     dets = DetectionsFile.read(rep.detections)
     pairs = merge_by_time(rep.camera_frames(), rep.cloud_frames())
     pairs = paced(pairs, speed) if speed > 0 else pairs
-    detect = lambda f: dets.lookup(f.t, f.name)  # noqa: E731
+    detect = lambda f: dets.lookup(f.t, f.name)
     busy: list[float] = []  # the loop's own time per frame (sum of its stage timings)
     on_frame, srv, stop, extra = (lambda n, res: busy.append(sum(res.timings_ms.values()))), None, None, {}
     if console_client is not None:
@@ -54,8 +54,8 @@ def _one_run(console_client: str | None, speed: float = 0.0) -> tuple[float, dic
         else:  # a separate process, like a browser (its reads must not take this process's GIL)
             import subprocess
 
-            extra["proc"] = subprocess.Popen([sys.executable, "-c", "import sys, threading; from benchmarks.console import _python_client; "
-                                              "_python_client(sys.argv[1], threading.Event())", srv.url], cwd=ROOT)  # fmt: skip
+            extra["proc"] = subprocess.Popen([sys.executable, "-c", ("import sys, threading; from benchmarks.console import _python_client; "
+                                              "_python_client(sys.argv[1], threading.Event())"), srv.url], cwd=ROOT)  # fmt: skip
         time.sleep(1.0)  # page loaded and connected before the loop starts
     s = run(pipe, pairs, detect, status=False, on_frame=on_frame)
     if srv is not None:

@@ -58,7 +58,7 @@ def nudge_in_browser(image_bgr: np.ndarray, camera, points_lidar: np.ndarray, T_
     def render(nudge) -> bytes:
         T = apply_nudge(T_init, nudge)
         img = overlay_cloud(image_bgr, camera, T, pts)
-        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        _, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
         return buf.tobytes()
 
     def parse(args: dict) -> np.ndarray:
@@ -82,7 +82,7 @@ def nudge_in_browser(image_bgr: np.ndarray, camera, points_lidar: np.ndarray, T_
         return {"ok": True}
 
     state["jpeg"], state["n"] = render(np.zeros(6)), 0
-    setup = {"params": list(NUDGE_PARAMS), "steps": STEPS, "image_size": [int(image_bgr.shape[1]), int(image_bgr.shape[0])], "points": int(len(pts))}
+    setup = {"params": list(NUDGE_PARAMS), "steps": STEPS, "image_size": [int(image_bgr.shape[1]), int(image_bgr.shape[0])], "points": len(pts)}
     srv.get["/"] = lambda q: ("text/html; charset=utf-8", asset(PACKAGE, "nudge.html"))
     srv.get["/api/setup"] = lambda q: ("application/json", json.dumps(setup).encode())
     srv.get["/overlay.jpg"] = lambda q: ("image/jpeg", state["jpeg"])

@@ -17,15 +17,20 @@ from __future__ import annotations
 import dataclasses
 import json
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
 from radarcal import geometry
 from radarcal.errors import InputError
-from radarcal.pnp.field_pnp import FieldPnPError, FieldPnPResult, PnPOptions, solve_field_pnp
+from radarcal.pnp.field_pnp import (
+    FieldPnPError,
+    FieldPnPResult,
+    PnPOptions,
+    solve_field_pnp,
+)
 
-__all__ = ["NUDGE_PARAMS", "STEPS", "apply_nudge", "view_angles_deg", "field_overlay", "preview", "pose_result", "pick_in_browser"]
+__all__ = ["NUDGE_PARAMS", "STEPS", "apply_nudge", "field_overlay", "pick_in_browser", "pose_result", "preview", "view_angles_deg"]
 
 # x y z: camera position in the field frame (m); yaw: about the field's vertical through the camera; pitch: about the
 # camera's x axis (+ tilts the view up); roll: about the camera's optical axis (deg at the interface).
@@ -138,7 +143,7 @@ def preview(camera, field_model, names: list[str], uv: np.ndarray, nudge, option
 def _picks_from(args: dict, known: dict) -> tuple[list[str], np.ndarray, np.ndarray]:
     picks = args.get("picks") or {}
     if not isinstance(picks, dict):
-        raise ValueError("picks must be an object name -> [u, v]")
+        raise TypeError("picks must be an object name -> [u, v]")
     names, uv = [], []
     for n, p in picks.items():
         if n not in known:

@@ -93,7 +93,7 @@ def test_keys_in_chromium_undo_a_known_offset(scene, tmp_path, browser, screensh
     assert s["init"].startswith("nudged in the browser from")
     from radarcal.bundle import load_bundle, load_session
 
-    arrays, meta = load_session(load_bundle(tmp_path / "b.yaml"), "lidar_camera/cam0_lidar0")
+    arrays, _ = load_session(load_bundle(tmp_path / "b.yaml"), "lidar_camera/cam0_lidar0")
     deg, m_ = geometry.pose_error(arrays["T_init"], T_true)  # the page's nudge undid the mis-mounting exactly
     assert deg < 1e-9 and m_ < 1e-9
     import cv2

@@ -22,7 +22,14 @@ from radarcal import geometry
 from radarcal.bundle import load_bundle, save_bundle
 from radarcal.field import load_field
 from radarcal.pnp.field_pnp import FieldPnPError, solve_field_pnp
-from radarcal.pnp.ui import STEPS, apply_nudge, pick_in_browser, pose_result, preview, view_angles_deg
+from radarcal.pnp.ui import (
+    STEPS,
+    apply_nudge,
+    pick_in_browser,
+    pose_result,
+    preview,
+    view_angles_deg,
+)
 from radarcal.synth.field import FieldSceneConfig, default_rig, write_field_replay
 
 REPO = Path(__file__).resolve().parents[2]
@@ -49,8 +56,8 @@ def test_nudge_parameters_mean_what_the_page_says():
         c, x, z = _axes(apply_nudge(T, [*d, 0, 0, 0]))
         np.testing.assert_allclose(c - c0, d, atol=1e-12)
         np.testing.assert_allclose(z, z0, atol=1e-12)
-    heading = lambda z: np.degrees(np.arctan2(z[1], z[0]))  # noqa: E731
-    elevation = lambda z: np.degrees(np.arcsin(z[2]))  # noqa: E731
+    heading = lambda z: np.degrees(np.arctan2(z[1], z[0]))
+    elevation = lambda z: np.degrees(np.arcsin(z[2]))
     c, x, z = _axes(apply_nudge(T, [0, 0, 0, 2.0, 0, 0]))  # yaw: heading +2 deg, elevation kept
     assert abs(heading(z) - heading(z0) - 2.0) < 1e-9 and abs(elevation(z) - elevation(z0)) < 1e-9
     np.testing.assert_allclose(c, c0, atol=1e-12)
@@ -189,7 +196,7 @@ def test_clicks_in_chromium_equal_the_csv_path(scene, tmp_path, browser, screens
         def move(u, v):
             sx, sy = browser.execute_script(f"return window.__pnp.toScreen({u}, {v});")
             ab = ActionBuilder(browser)
-            ab.pointer_action.move_to_location(int(round(ox + sx)), int(round(oy + sy)))
+            ab.pointer_action.move_to_location(round(ox + sx), round(oy + sy))
             ab.perform()
 
         def click_at(u, v, du=0.0):
@@ -203,7 +210,7 @@ def test_clicks_in_chromium_equal_the_csv_path(scene, tmp_path, browser, screens
             u, v = truth["landmark_pixels"][n]
             assert browser.execute_script("return document.querySelector('li.current').dataset.name;") == n  # the page asks for n next
             click_at(u, v, du=6.0 if i == 0 else 0.0)  # the first one deliberately 6 px off, refined by dragging below
-        _wait(browser, f"window.__pnp.updates >= 1 && window.__pnp.preview.solved && Object.keys(window.__pnp.preview.residuals).length == 4")
+        _wait(browser, "window.__pnp.updates >= 1 && window.__pnp.preview.solved && Object.keys(window.__pnp.preview.residuals).length == 4")
         # drag the first pick to the right place (zoomed in on it)
         u, v = truth["landmark_pixels"][order[0]]
         move(u + 6.0, v)

@@ -210,7 +210,7 @@ def test_console_in_chromium_follows_the_replay(browser, screenshot, tmp_path):
                 shot = screenshot(browser, "console_live")
             stats = browser.execute_script("return window.__console;")
     finally:
-        out, err = p.communicate(timeout=60)
+        _, err = p.communicate(timeout=60)
     assert p.returncode == 0, err
     # the page was live the whole replay: >= 10 updates per second
     log = stats["log"]

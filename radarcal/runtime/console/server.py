@@ -27,15 +27,16 @@ import sys
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
-from typing import Any, Callable
+from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from radarcal.errors import InputError
 
-__all__ = ["parse_bind", "is_loopback", "WebServer", "LatestSlot", "asset"]
+__all__ = ["LatestSlot", "WebServer", "asset", "is_loopback", "parse_bind"]
 
 CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8", ".css": "text/css; charset=utf-8",
                  ".png": "image/png", ".jpg": "image/jpeg", ".svg": "image/svg+xml"}  # fmt: skip
@@ -155,7 +156,7 @@ class WebServer:
         h = f"[{self.host}]" if ":" in self.host else self.host
         return f"http://{h}:{self.port}/"
 
-    def start(self) -> "WebServer":
+    def start(self) -> WebServer:
         self._thread = threading.Thread(target=self.httpd.serve_forever, kwargs={"poll_interval": 0.2}, daemon=True, name=f"{self.name}-http")
         self._thread.start()
         return self
@@ -239,7 +240,7 @@ class _Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
     timeout = 30  # a client that stops reading frees its thread; the loop never waits for it
 
-    def log_message(self, format: str, *args) -> None:  # noqa: A002 - quiet: refusals are logged by the app
+    def log_message(self, format: str, *args) -> None:
         pass
 
     def _client(self) -> str:
@@ -266,7 +267,7 @@ class _Handler(BaseHTTPRequestHandler):
         app.refuse(self._client(), f"{self.command} {urlsplit(self.path).path}", int(e.status), e.why)
         self._json(int(e.status), {"error": e.why})
 
-    def do_GET(self) -> None:  # noqa: N802
+    def do_GET(self) -> None:
         app = self.server_app
         url = urlsplit(self.path)
         q = {k: v[-1] for k, v in parse_qs(url.query).items()}
@@ -310,7 +311,7 @@ class _Handler(BaseHTTPRequestHandler):
             if held:
                 app.stream_closed()
 
-    def do_POST(self) -> None:  # noqa: N802
+    def do_POST(self) -> None:
         app = self.server_app
         url = urlsplit(self.path)
         try:
