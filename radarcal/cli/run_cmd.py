@@ -126,6 +126,8 @@ def run(
                     "minimap": str(minimap) if minimap else None, "team": cfg.team, "season": cfg.season})  # fmt: skip
     if link is not None:
         summary["serial"] = {"port": serial, **link.snapshot(), "disconnects": link.stats.disconnects, "last_error": link.stats.last_error}
+    if console is not None:
+        summary["console"] = {"url": console.server.url, "messages_sent": console.sent, "refused_requests": len(console.server.refusals), "actions": len(console.server.accepted)}
 
     def human(s: dict) -> None:
         typer.echo(f"{s['frames']} frames in {s['wall_s']:.1f} s ({s['fps']:.1f} FPS), {s['clouds']} clouds; camera {s['camera']}, lidar {s['lidar'] or '-'}")

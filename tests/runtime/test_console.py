@@ -169,7 +169,7 @@ def test_latest_slot_drops_old_values():
 # --- in the browser ------------------------------------------------------------------------------------------------------
 def _start_run(tmp_path: Path, extra: list[str]) -> tuple[subprocess.Popen, str, str]:
     out = tmp_path / "tracks.jsonl"
-    cmd = [sys.executable, "-m", "radarcal", "run", "--replay", str(SAMPLE), "--ui", "127.0.0.1:0", "--out", str(out), "--quiet", *extra]
+    cmd = [sys.executable, "-m", "radarcal", "run", "--replay", str(SAMPLE), "--ui", "127.0.0.1:0", "--out", str(out), "--quiet", "--json", *extra]
     env = {**os.environ, "MPLBACKEND": "Agg", "PYTHONUNBUFFERED": "1"}
     p = subprocess.Popen(cmd, cwd=REPO, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=env)
     deadline = time.time() + 60
@@ -210,8 +210,10 @@ def test_console_in_chromium_follows_the_replay(browser, screenshot, tmp_path):
                 shot = screenshot(browser, "console_live")
             stats = browser.execute_script("return window.__console;")
     finally:
-        _, err = p.communicate(timeout=60)
+        out, err = p.communicate(timeout=60)
     assert p.returncode == 0, err
+    con = json.loads(out)["console"]
+    assert con["actions"] == 1 and con["refused_requests"] == 0 and con["messages_sent"] >= len(stats["log"])
     # the page was live the whole replay: >= 10 updates per second
     log = stats["log"]
     span = (log[-1]["shown"] - log[0]["shown"]) / 1e3
