@@ -50,6 +50,7 @@ def field_pnp(
     overlay: Path = typer.Option(None, "--overlay", help="With --image: write the image with the field outline, raised areas and all landmarks projected by the solved pose."),
     depth: str = typer.Option("auto", "--depth", help="Depth source for the printed map: auto (LiDAR if one is chained to the camera) | lidar | ground."),
     lidar: str = typer.Option(None, "--lidar", help="LiDAR sensor name (default: any LiDAR chained to the camera)."),
+    ui: str = typer.Option(None, "--ui", help="With --image: click the landmarks in the browser, served on [HOST:]PORT (127.0.0.1 unless a host is given)."),
     as_json: JsonOpt = False,
 ) -> None:
     """Solve the camera's pose on the field from clicked landmarks; write T_<camera>_field and an error map."""
@@ -86,7 +87,35 @@ def field_pnp(
         field_src = "rmuc2024"
 
     # --- picks: file, or the interactive picker ---------------------------------------------------------------
-    if points is not None and points.exists():
+    opt = PnPOptions(click_sigma_px=click_sigma, max_rms_px=max_rms, ransac_threshold_px=ransac_px)
+    T_nudged = None
+    if ui is not None:  # the browser page (radarcal/pnp/ui.py): saving runs the same solver and checks as the CSV path
+        if image is None:
+            raise InputError("--ui", "needs --image (the camera frame to click on)")
+        from radarcal.pnp.ui import pick_in_browser, pose_result
+
+        img = read_image(image)
+        if tuple(img.shape[1::-1]) != tuple(cam.image_size):
+            raise InputError(image, f"image is {img.shape[1]}x{img.shape[0]} but camera {camera} is {cam.width}x{cam.height}")
+        want = [s.strip() for s in landmarks.split(",")] if landmarks else DEFAULT_PICKS[side]
+        unknown = [n for n in want if n not in fm.landmarks]
+        if unknown:
+            raise InputError("--landmarks", f"unknown landmark(s) {', '.join(unknown)} (the field has: {', '.join(sorted(fm.landmarks))})")
+        picks_src = points or image.with_suffix(".picks.csv")
+        start = dict(zip(*read_picks(points, fm.landmarks))) if points is not None and points.exists() else {}
+
+        def check(names, uv, T_override):
+            if np.any(~cam.in_image(uv, margin=-0.5)):
+                raise InputError(picks_src, "a pick is outside the image")
+            r = solve_field_pnp(cam, fm.landmark_array(names), uv, names, opt, surface_z=fm.surface_z)
+            r = pose_result(cam, r, T_override, opt) if T_override is not None else r
+            return {"message": f"{len(names)} picks, RMS {r.rms_px:.2f} px -> T_{camera}_field in {bundle}", "rms_px": r.rms_px}
+
+        names, uv, T_nudged = pick_in_browser(img, cam, fm, want, check, ui, T_init=b.T(camera, "field") if b.has_T(camera, "field") else None, options=opt, initial=start)
+        save_picks(picks_src, names, uv)
+        names, uv = read_picks(picks_src, fm.landmarks)  # from here on exactly the CSV path
+        err_console.print(f"wrote {len(names)} picks to {picks_src}")
+    elif points is not None and points.exists():
         names, uv = read_picks(points, fm.landmarks)
         picks_src = points
     elif image is not None:
@@ -119,9 +148,10 @@ def field_pnp(
         raise InputError(picks_src, f"pick {names[int(np.argmax(outside))]} is outside the {cam.width}x{cam.height} image")
 
     # --- solve ---------------------------------------------------------------------------------------------
-    opt = PnPOptions(click_sigma_px=click_sigma, max_rms_px=max_rms, ransac_threshold_px=ransac_px)
     try:
         res = solve_field_pnp(cam, fm.landmark_array(names), uv, names, opt, surface_z=fm.surface_z)
+        if T_nudged is not None:
+            res = pose_result(cam, res, T_nudged, opt)
     except FieldPnPError as e:
         raise InputError(picks_src, str(e)) from None
 

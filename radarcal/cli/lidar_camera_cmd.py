@@ -57,6 +57,7 @@ def lidar_camera(
     overlay: Path = typer.Option(None, "--overlay", help="Write the first cloud over the first image, before | after (PNG)."),
     max_pnp_rms: float = typer.Option(3.0, "--max-pnp-rms", help="Refuse a corners/boards pose whose reprojection RMS over the kept correspondences exceeds this (px)."),
     force: bool = typer.Option(False, "--force", help="Store the result even when the refinement did not converge or the PnP residuals say it is wrong."),
+    ui: str = typer.Option(None, "--ui", help="Nudge the initial pose by eye first: the first cloud over the first image in the browser on [HOST:]PORT (docs/console.md)."),
     as_json: JsonOpt = False,
 ) -> None:
     """Calibrate T_cam_lidar: manual corners / boards (PnP) and/or targetless edge refinement."""
@@ -96,6 +97,13 @@ def lidar_camera(
     else:
         T0 = geometry.make_T(MOUNT_R_CAM_LIDAR, np.zeros(3))
         init_src = "default mounting (LiDAR x forward = camera z)"
+    if ui is not None:  # the operator nudges T0 by eye (radarcal/extrinsics/nudge_ui.py); the rest runs from it unchanged
+        if not imgs:
+            raise InputError("--ui", "needs an --image/--cloud pair (the cloud is drawn over the image)")
+        from radarcal.extrinsics.nudge_ui import nudge_in_browser
+
+        T0 = nudge_in_browser(imgs[0], cam, clds[0].points, T0, ui, max_range=max_range)
+        init_src = f"nudged in the browser from {init_src}"
     summary["init"] = init_src
     T = T0
     method = []

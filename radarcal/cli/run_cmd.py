@@ -46,6 +46,8 @@ def run(
     max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
+    ui: str = typer.Option(None, "--ui", help="Serve the live operator console on [HOST:]PORT (default host 127.0.0.1; docs/console.md)."),
+    speed: float = typer.Option(None, "--speed", help="Replay at this multiple of real time (default: 1 with --ui, else as fast as possible; 0 = unpaced)."),
     as_json: JsonOpt = False,
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
@@ -118,10 +120,22 @@ def run(
 
         link = SerialLink(serial, season=cfg.season).start()
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
+    pairs, on_frame, console = merge_by_time(frames, cloud_src, offset), evaluator, None
+    if ui is not None or speed:
+        from radarcal.runtime.console.live import chain_callbacks, paced, start_console
+
+        pairs = paced(pairs, speed if speed is not None else 1.0) if rep is not None else pairs
+        if ui is not None:
+            console = start_console(ui, pipe, b, cam_name, lidar_name if has_clouds else None, {"camera": cam_name, "team": cfg.team, "hero_range_offset_m": cfg.hero_range_offset_m})
+            pairs, detect, on_frame = console.observe_pairs(pairs), console.observe_detect(detect), chain_callbacks(evaluator, console.on_frame)
+            for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None))):
+                if callable(src):
+                    console.add_health(name, src)
     try:
-        summary = run_loop(pipe, merge_by_time(frames, cloud_src, offset), detect, out, minimap, link, status=not quiet and not as_json,
-                           max_frames=max_frames, on_frame=evaluator)  # fmt: skip
+        summary = run_loop(pipe, pairs, detect, out, minimap, link, status=not quiet and not as_json, max_frames=max_frames, on_frame=on_frame)
     finally:
+        if console is not None:
+            console.server.close()
         if link is not None:
             link.close()
         if hasattr(frames, "close"):  # stop the decode / detect-ahead threads before exit (a thread still inside
@@ -141,6 +155,8 @@ def run(
         if not link.stats.connects:
             warnings.append(f"referee link {serial} never connected ({link.stats.last_error or 'no reply'}): nothing was sent")
     summary["warnings"] = warnings
+    if console is not None:
+        summary["console"] = {"url": console.server.url, "messages_sent": console.sent, "refused_requests": len(console.server.refusals), "actions": len(console.server.accepted)}
 
     def human(s: dict) -> None:
         typer.echo(f"{s['frames']} frames in {s['wall_s']:.1f} s ({s['fps']:.1f} FPS), {s['clouds']} clouds; camera {s['camera']}, lidar {s['lidar'] or '-'}")
