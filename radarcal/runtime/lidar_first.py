@@ -74,6 +74,7 @@ class LidarFirst:
         self.pad_px = 3.0 + (camera.fx * np.deg2rad(self.cfg.sigma_rot_deg) if camera is not None else 0.0)
         self.protect_boxes: np.ndarray | None = None  # current detection boxes: their points are not learnt
         self.last_clusters = None
+        self.fuse_box_depth = True
         self.clouds = 0
 
     # --- clouds ----------------------------------------------------------------------------------------------------
@@ -84,7 +85,7 @@ class LidarFirst:
         p, idx, bg = self.filter(pts, t_ref)
         # learn: every off-field point except those on tracked robots and inside detection boxes
         # (tracks a box has named or that have moved: a static unnamed cluster is what the background must learn)
-        prot_xy = np.array([tr.x[:2] + tr.x[2:] * (t_ref - tr.t) for tr in self.tracker.tracks if tr.state != TENTATIVE and (tr.votes or tr.moved)]).reshape(-1, 2)
+        prot_xy = np.array([tr.x[:2] + tr.x[2:] * (t_ref - tr.t) for tr in self.tracker.tracks if tr.state != TENTATIVE and tr.evidence]).reshape(-1, 2)
         learn = p
         if self.protect_boxes is not None and len(self.protect_boxes) and self.camera is not None and len(p):
             uv, ok, _ = self.camera.project_from(self.T_cam_field, p.astype(float))
@@ -145,7 +146,8 @@ class LidarFirst:
     def frame(self, t: float, boxes: np.ndarray, labels: list[str], scores: np.ndarray, locate_boxes=None) -> list[Track3D]:
         """One camera frame at ``t``: identities from ``boxes`` (B,4) with ``labels``/``scores``; boxes matched to no
         track go to ``locate_boxes(indices) -> (p_field (K,3), sigma (K,), source (K,))`` (None: LiDAR only).
-        Returns the confirmed and lost tracks predicted to ``t`` (``tr.last_box``: the box matched this frame)."""
+        Returns the confirmed and lost tracks with evidence (:attr:`Track3D.evidence`) predicted to ``t``
+        (``tr.last_box``: the box matched this frame)."""
         tk = self.tracker
         for tr in tk.tracks:
             tr.last_box = None
@@ -161,6 +163,20 @@ class LidarFirst:
                     tr.last_box = j
                     matched_boxes.add(j)
                     add_votes(tr.votes, labels[j], float(scores[j]) * min(1.0, q + 0.3))
+        # a box matched to a track also gives a box-depth fix: the camera ray is not turned by the LiDAR-camera
+        # rotation error, so near the track's prediction it is the better measurement and both update the filter;
+        # one far from the prediction took its depth from something else (a robot in front) and is ignored
+        if matched_boxes and locate_boxes is not None and self.fuse_box_depth:
+            idx = sorted(matched_boxes)
+            p, sig, src = locate_boxes(idx)
+            for n, j in enumerate(idx):
+                tr = next(o for o in tk.tracks if o.last_box == j)
+                if str(src[n]) != "depth" or not np.all(np.isfinite(p[n, :2])) or tr.aerial:
+                    continue
+                d = float(np.linalg.norm(tr.x[:2] + tr.x[2:] * (t - tr.t) - p[n, :2]))
+                if d <= 0.35 + 2.0 * np.hypot(tr.sigma, float(sig[n])):
+                    tk._update(tr, p[n, :2], float(sig[n]), t, tr.z, "depth")
+                    tr.n_box, tr.t_box = tr.n_box + 1, t
         # box-only fixes for the boxes no LiDAR track explains
         rest = [j for j in range(len(boxes)) if j not in matched_boxes]
         if rest and locate_boxes is not None:
@@ -187,12 +203,12 @@ class LidarFirst:
         names = assign_labels([tr.votes for tr in tk.tracks], live=[tr.state != LOST for tr in tk.tracks])
         for tr, lab in zip(tk.tracks, names):
             tr.label = lab
-        return [tr for tr in tk.tracks if tr.state in (CONFIRMED, LOST)]
+        return [tr for tr in tk.tracks if tr.state in (CONFIRMED, LOST) and tr.evidence]
 
     def seen_source(self, tr: Track3D, t: float) -> str:
         """``lidar`` / ``depth`` / ``ground`` when this frame has evidence for the track, else ``predicted``."""
         if t - tr.t_lidar <= self.cfg.seen_lidar_s:
             return "lidar"
         if t - tr.t_box <= self.cfg.seen_box_s:
-            return tr.source if tr.source != "lidar" else "depth"
+            return tr.source if tr.source in ("depth", "ground") else "depth"
         return "predicted"

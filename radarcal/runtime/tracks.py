@@ -144,9 +144,19 @@ class Track3D:
     pending: tuple | None = None  # (xy, t) of a box fix that disagreed with a LiDAR-lost track
     origin: np.ndarray | None = None  # where the track started (a track that never moved may be background)
 
+    ever_moved: bool = False
+
     @property
     def moved(self) -> bool:
-        return self.origin is not None and float(np.linalg.norm(self.x[:2] - self.origin)) > 0.5
+        if not self.ever_moved and self.origin is not None and float(np.linalg.norm(self.x[:2] - self.origin)) > 1.0:
+            self.ever_moved = True
+        return self.ever_moved
+
+    @property
+    def evidence(self) -> bool:
+        """Named by a box or seen moving: a cluster that never moved and was never boxed is more likely something
+        static the learnt background has not absorbed yet (a referee's box) than a robot."""
+        return self.label is not None or self.moved
 
     @property
     def xy(self) -> np.ndarray:
@@ -196,7 +206,7 @@ class Tracker3D:
     * Measurements carry their own time (the mean firing time of a cluster's points): the track is predicted to it,
       updated, and predicted on to the frame time (motion compensation of late clouds, cause 1)."""
 
-    def __init__(self, accel_sigma: float = 3.0, gate_m: float = 0.8, confirm_hits: int = 2, confirm_box_hits: int = 4, tentative_s: float = 0.5,
+    def __init__(self, accel_sigma: float = 3.0, gate_m: float = 0.8, confirm_hits: int = 2, confirm_box_hits: int = 3, tentative_s: float = 0.5,
                  lost_after_s: float = 0.35, max_coast_s: float = 1.5, vmax: float = 4.5, init_speed_sigma: float = 1.5):  # fmt: skip
         self.q = float(accel_sigma) ** 2
         self.gate_m = float(gate_m)
