@@ -111,7 +111,7 @@ def add_votes(votes: dict, label: str, weight: float, decay: float = 0.93) -> No
     votes[label] = votes.get(label, 0.0) + float(weight)
 
 
-def assign_labels(votes: list[dict], min_vote: float = 1.2, ratio: float = 1.6, live: list[bool] | None = None) -> list[str | None]:
+def assign_labels(votes: list[dict], min_vote: float = 0.6, ratio: float = 1.5, live: list[bool] | None = None) -> list[str | None]:
     """One label per track and one track per label, greedily by vote (strongest first; tracks the sensors see now,
     ``live``, before lost ones: a robot found again by a new track takes its label back from the lost track)."""
     live = live if live is not None else [True] * len(votes)

@@ -55,6 +55,7 @@ class RunConfig:
     cloud_latency_s: float = 0.0  # sweep end -> arrival
     window_sweeps: int = 2  # clouds integrated before clustering
     learn_background: bool = True
+    ground_min_aspect: float = 0.55  # box height / width below which a LiDAR-first box-only fix takes no ground ray
 
     @classmethod
     def from_bundle(cls, bundle: Bundle, **overrides) -> "RunConfig":
@@ -235,6 +236,10 @@ class Pipeline:
             b = boxes[idx]
             depth, dsig = self._box_depths(b, t)
             loc = self.localiser.locate(b, depth, dsig)
+            # a box much wider than high is the visible top of a robot hidden below: its bottom edge is not the
+            # robot's foot point, so no ground ray from it
+            flat = (b[:, 3] - b[:, 1]) < self.cfg.ground_min_aspect * (b[:, 2] - b[:, 0])
+            loc.source[flat & (loc.source == "ground")] = "none"
             for n, j in enumerate(idx):
                 fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
             return loc.p_field, loc.sigma, loc.source

@@ -218,6 +218,7 @@ class Tracker3D:
         self.vmax = float(vmax)
         self.init_speed_sigma = float(init_speed_sigma)
         self.reacquire_m = 2.0
+        self.coast_damping_s = 0.5
         self.tracks: list[Track3D] = []
         self._next = 1
 
@@ -370,6 +371,9 @@ class Tracker3D:
                 tr.state = LOST
             else:
                 tr.state = CONFIRMED
+            dt = t - tr.t
             self.predict_to(tr, t)
+            if age > self.lost_after_s and dt > 0:  # coasting: a robot nobody sees has more likely stopped or turned
+                tr.x[2:] *= np.exp(-dt / self.coast_damping_s)
             keep.append(tr)
         self.tracks = keep
