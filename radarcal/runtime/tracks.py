@@ -350,6 +350,7 @@ class Tracker3D:
         if best is not None:
             for k, v in best.votes.items():
                 tr.votes[k] = tr.votes.get(k, 0.0) + v
+            tr.ever_moved = tr.ever_moved or best.ever_moved
             best.state = "dropped"
 
     def step(self, t: float) -> None:
