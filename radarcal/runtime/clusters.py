@@ -165,8 +165,8 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     next_id = nc
     for c in wide:  # few per cloud; the split itself is vectorised
         m = np.flatnonzero(comp == c)
-        k = int(min(4, max(2, round(width[c] / q.robot_m))))
-        if k < 2 or len(m) < 2 * q.min_points_far:
+        k = int(max(2, round(width[c] / q.robot_m)))
+        if k > 4 or len(m) < 2 * q.min_points_far:  # wider than four robots side by side: not robots (a wall)
             continue
         sub = _kmeans_split(p[m, :2], k)
         comp[m[sub > 0]] = next_id + sub[sub > 0] - 1

@@ -145,10 +145,11 @@ class Track3D:
     origin: np.ndarray | None = None  # where the track started (a track that never moved may be background)
 
     ever_moved: bool = False
+    MOVED_M = 1.0  # displacement from where the track started that counts as moving (clutter jitters by up to 0.5 m)
 
     @property
     def moved(self) -> bool:
-        if not self.ever_moved and self.origin is not None and float(np.linalg.norm(self.x[:2] - self.origin)) > 1.0:
+        if not self.ever_moved and self.origin is not None and float(np.linalg.norm(self.x[:2] - self.origin)) > self.MOVED_M:
             self.ever_moved = True
         return self.ever_moved
 
