@@ -122,7 +122,7 @@ def assign_labels(votes: list[dict], min_vote: float = 0.6, ratio: float = 1.5, 
     for v, k, lab in pairs:
         if out[k] is not None or lab in used or v < min_vote:
             continue
-        others = [w for l2, w in votes[k].items() if l2 != lab and l2 not in used]  # labels others hold do not compete
+        others = [w for l2, w in votes[k].items() if l2 != lab]
         if others and v < ratio * max(others):
             continue
         out[k] = lab

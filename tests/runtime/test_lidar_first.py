@@ -128,8 +128,8 @@ def test_identity_matches_the_visible_part_and_labels_are_unique():
     boxes = np.array([[203, 92, 249, 178], [102, 82, 199, 198.0]])
     pairs = match_boxes(vis, boxes)
     assert sorted((k, j) for k, j, _ in pairs) == [(0, 1), (1, 0)]
-    labels = assign_labels([{"blue_3": 5.0, "blue_4": 0.6}, {"blue_3": 2.0, "blue_4": 1.8}, {"red_1": 0.3}])
-    assert labels == ["blue_3", "blue_4", None]  # one track per label, weak votes give no label
+    labels = assign_labels([{"blue_3": 5.0, "blue_4": 0.6}, {"blue_3": 2.0, "blue_4": 1.8}, {"red_1": 0.3}, {"blue_3": 1.0, "blue_5": 3.0}])
+    assert labels == ["blue_3", None, None, "blue_5"]  # one track per label; ambiguous or weak votes give no label
 
 
 def test_point_times_model_a_late_sweep():
