@@ -31,7 +31,7 @@ __all__ = ["LidarFirstConfig", "LidarFirst", "point_times"]
 
 @dataclass
 class LidarFirstConfig:
-    window_sweeps: int = 2  # clouds integrated (measured trade-off in docs/runtime.md)
+    window_sweeps: int = 1  # clouds integrated (measured trade-off in docs/runtime.md: 1 is best here)
     sweep_s: float = 0.1  # firing duration of one cloud (0: every point at the cloud time)
     latency_s: float = 0.0  # sweep end -> cloud time stamp
     learn_background: bool = True

@@ -53,7 +53,7 @@ class RunConfig:
     localise: str = "auto"  # auto | lidar | box
     cloud_sweep_s: float = 0.1  # firing duration of one cloud; the cloud's time is its arrival
     cloud_latency_s: float = 0.0  # sweep end -> arrival
-    window_sweeps: int = 2  # clouds integrated before clustering
+    window_sweeps: int = 1  # clouds integrated before clustering (1 measured best: docs/runtime.md)
     learn_background: bool = True
     ground_min_aspect: float = 0.55  # box height / width below which a LiDAR-first box-only fix takes no ground ray
 
