@@ -53,7 +53,7 @@ def test_accuracy_lidar_first(replay):
     assert acc["median_m"] < 0.15 and acc["p95_m"] < 0.6, acc
     assert acc["right_within_0.6m_pct"] > 90 and acc["false_per_frame"] < 0.1, acc
     by = acc["by_source"]
-    assert by["lidar"]["n"] > 0.3 * acc["visible"] and by["lidar"]["n"] + by["depth"]["n"] > 0.8 * acc["visible"], by
+    assert by["lidar"]["n"] > 0.2 * acc["visible"] and by["lidar"]["n"] + by["depth"]["n"] > 0.9 * acc["visible"], by  # 3 k-point clouds: few clusters
     unlabelled = [r for res in s["results"] for r in res["robots"] if r["label"] is None]
     assert all("id" in r and r["state"] in ("confirmed", "lost") for r in unlabelled)
 
