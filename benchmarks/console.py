@@ -107,7 +107,8 @@ def _hot_path_cost() -> None:
     stream reader connected (timed directly; independent of the machine's load from other processes)."""
     from radarcal.runtime.console.live import LiveConsole
     from radarcal.runtime.console.server import WebServer
-    from radarcal.runtime.sources import CameraFrame, CloudFrame
+    from radarcal.io.clouds import Cloud
+    from radarcal.runtime.sources import CameraFrame
 
     srv = WebServer("127.0.0.1", 0, log=lambda s: None)
     con = LiveConsole(srv)
@@ -122,7 +123,7 @@ def _hot_path_cost() -> None:
         def to_dict(self):
             return {"t": 0.0, "frame": "x", "robots": [{"label": f"red_{i}", "x": 1.0, "y": 2.0} for i in range(12)]}
 
-    frames = ((CameraFrame(i / 30, f"{i}", lambda: None, i), [CloudFrame(i / 30, np.zeros((10, 3), np.float32))]) for i in range(20000))
+    frames = ((CameraFrame(i / 30, f"{i}", lambda: None, i), [Cloud(np.zeros((10, 3), np.float32), t=i / 30)]) for i in range(20000))
     det = con.observe_detect(lambda f: [])
     cost = []
     it = con.observe_pairs(frames)

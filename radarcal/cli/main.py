@@ -20,6 +20,7 @@ from radarcal.cli import (
     synth_board_cmd,
     synth_field_cmd,
     synth_lidar_camera_cmd,
+    synth_match_cmd,
     synth_radar_cmd,
 )
 from radarcal.errors import InputError
@@ -50,6 +51,7 @@ synth_app.command("board")(synth_board_cmd.synth_board)
 synth_app.command("lidar-camera")(synth_lidar_camera_cmd.synth_lidar_camera)
 synth_app.command("field")(synth_field_cmd.synth_field)
 synth_app.command("radar")(synth_radar_cmd.synth_radar)
+synth_app.command("match")(synth_match_cmd.synth_match)
 
 
 def _click_classes(name: str) -> tuple[type, ...]:

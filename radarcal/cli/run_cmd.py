@@ -45,6 +45,8 @@ def run(
     sentry_xy: str = typer.Option(None, "--sentry-xy", help="Our sentry's field position X,Y (m) when it is not tracked."),
     max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
+    localise: str = typer.Option("auto", "--localise", help="auto (LiDAR tracks + box fallback) | lidar (LiDAR tracks only) | box (box depth, the 2022 way)."),
+    no_camera: bool = typer.Option(False, "--no-camera", help="Ignore detections: LiDAR only (every track unlabelled)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
     ui: str = typer.Option(None, "--ui", help="Serve the live operator console on [HOST:]PORT (default host 127.0.0.1; docs/console.md)."),
     speed: float = typer.Option(None, "--speed", help="Replay at this multiple of real time (default: 1 with --ui, else as fast as possible; 0 = unpaced)."),
@@ -56,9 +58,15 @@ def run(
     from radarcal.runtime.loop import OnlineEvaluator, Pipeline, RunConfig, pick_frames
     from radarcal.runtime.loop import run as run_loop
     from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, open_replay, prefetch_frames
+    from radarcal.runtime.loop import cloud_frames_as_pairs
 
-    if (replay is None) == (video is None):
-        raise InputError("radarcal run", "give exactly one of --replay DIR or --video SRC")
+    lidar_only = no_camera or (replay is None and video is None and clouds is not None)
+    if replay is not None and video is not None or (replay is None and video is None and clouds is None):
+        raise InputError("radarcal run", "give exactly one of --replay DIR or --video SRC (or --clouds SRC alone: LiDAR only)")
+    if localise not in ("auto", "lidar", "box"):
+        raise InputError("--localise", f"expected auto, lidar or box, got {localise!r}")
+    if lidar_only and (no_lidar or localise == "box"):
+        raise InputError("--no-camera", "LiDAR-only needs the clouds and --localise auto or lidar")
     if detector is not None and detections is not None:
         raise InputError("radarcal run", "give at most one of --detector and --detections")
     if team is not None and team not in ("red", "blue"):
@@ -80,7 +88,13 @@ def run(
             sxy = ()
         if len(sxy) != 2:
             raise InputError("--sentry-xy", f"expected X,Y in metres, got {sentry_xy!r}")
-    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy)
+    timing = {}
+    meta = rep.meta if rep is not None else {}
+    if "cloud_sweep_s" in meta:  # the replay says when its clouds were fired and delivered
+        timing = {"cloud_sweep_s": float(meta["cloud_sweep_s"]), "cloud_latency_s": float(meta.get("cloud_latency_s", 0.0))}
+    elif str(meta.get("generator", "")).startswith("radarcal synth field"):  # robots frozen at the cloud stamp
+        timing = {"cloud_sweep_s": 0.0, "cloud_latency_s": 0.0}
+    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy, localise="lidar" if lidar_only else localise, **timing)
     check_season(cfg.season, "--season" if season is not None else f"{bundle}: runtime.referee_season")
     check_outputs(bundle, [("track file", out), ("minimap", minimap)], b, inputs=[detections, rep.detections if rep else None, rep.truth if rep else None])
     if serial:
@@ -94,7 +108,9 @@ def run(
 
     if detector is None and (armour is not None or number is not None):
         raise InputError("--armour" if armour is not None else "--number", "needs --detector (the robot detector)")
-    if detector is not None:
+    if lidar_only:
+        detect = lambda f: []  # noqa: E731
+    elif detector is not None:
         detect = _open_detector(detector, names, detector_layout, anchors, armour, armour_names, number, number_names, providers, conf, threads)
     else:
         det_path = detections or (rep.detections if rep else None)
@@ -104,12 +120,15 @@ def run(
         detect = lambda f: dfile.lookup(f.t, f.name)  # noqa: E731
 
     if rep is not None:
-        frames = rep.camera_frames(need_pixels=detector is not None)
+        frames = rep.camera_frames(need_pixels=detector is not None and not lidar_only)
         cloud_src = rep.cloud_frames() if has_clouds else None
+    elif video is None:  # --clouds alone: one frame per cloud
+        cloud_src = open_clouds(clouds, cloud_topic)
+        frames = None
     else:
         frames = open_camera(video)
         cloud_src = open_clouds(clouds, cloud_topic) if has_clouds else None
-    if detector is not None:  # the pixels are needed: decode them ahead in a thread (live sources: newest frame only)
+    if detector is not None and frames is not None and not lidar_only:  # the pixels are needed: decode them ahead in a thread (live sources: newest frame only)
         live = video is not None and (video.isdigit() or "://" in video)
         frames = prefetch_frames(frames, latest_only=live)
         if detect_ahead:
@@ -120,7 +139,8 @@ def run(
 
         link = SerialLink(serial, season=cfg.season).start()
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
-    pairs, on_frame, console = merge_by_time(frames, cloud_src, offset), evaluator, None
+    pairs = merge_by_time(frames, cloud_src, offset) if frames is not None else cloud_frames_as_pairs(cloud_src, offset if isinstance(offset, float) else 0.0)
+    on_frame, console = evaluator, None
     if ui is not None or speed:
         from radarcal.runtime.console.live import chain_callbacks, paced, start_console
 
@@ -148,7 +168,7 @@ def run(
     summary["skipped_by_reason"] = dict(skipped.counts) if skipped is not None else {}
     if evaluator is not None:
         summary["accuracy"] = evaluator.summary()
-    summary.update({"bundle": str(bundle), "camera": cam_name, "lidar": lidar_name if has_clouds else None, "out": str(out) if out else None,
+    summary.update({"localise": cfg.localise, "lidar_only": lidar_only, "bundle": str(bundle), "camera": cam_name, "lidar": lidar_name if has_clouds else None, "out": str(out) if out else None,
                     "minimap": str(minimap) if minimap else None, "team": cfg.team, "season": cfg.season})  # fmt: skip
     if link is not None:
         summary["serial"] = {"port": serial, **link.snapshot(), "disconnects": link.stats.disconnects, "last_error": link.stats.last_error}
@@ -167,6 +187,10 @@ def run(
         acc = s.get("accuracy")
         if acc and acc["median_m"] is not None:
             typer.echo(f"  vs truth: {acc['located']}/{acc['visible']} visible robots located; error median {acc['median_m']:.3f} m, p95 {acc['p95_m']:.3f} m, max {acc['max_m']:.3f} m")
+            typer.echo(f"  right label within 0.6 m {acc['right_within_0.6m_pct']:.1f} %, false robots {acc['false_per_frame']:.3f} per frame, wrong label "
+                       f"{acc['wrong_label_pct'] or 0:.2f} %, any track within 0.3 m of a LiDAR-seen robot {acc['lidar_within_0.3m_pct'] or 0:.1f} %, longest ghost {acc['longest_ghost_s']:.2f} s")
+        elif acc:
+            typer.echo(f"  vs truth: any track within 0.3 m of a LiDAR-seen robot {acc['lidar_within_0.3m_pct'] or 0:.1f} %, false robots {acc['false_per_frame']:.3f} per frame, longest ghost {acc['longest_ghost_s']:.2f} s")
         if s.get("bad_frames") or s.get("skipped_inputs"):
             typer.echo(f"  skipped: {s['bad_frames']} unreadable frames, {s['skipped_inputs']} unreadable clouds/messages (warnings on stderr)")
         if s.get("out"):

@@ -14,7 +14,9 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from radarcal.bundle import Bundle
 
-__all__ = ["RunConfig"]
+__all__ = ["RunConfig", "LOCALISE_MODES"]
+
+LOCALISE_MODES = ("auto", "lidar", "box")
 
 
 @dataclass
@@ -35,10 +37,17 @@ class RunConfig:
     hero_range_offset_m: float = 0.0
     surface_filter: bool = True  # drop LiDAR returns from the field surface before box depth
     surface_min_height_m: float = 0.08
+    localise: str = "auto"  # auto | lidar | box
+    cloud_sweep_s: float = 0.1  # firing duration of one cloud; the cloud's time is its arrival
+    cloud_latency_s: float = 0.0  # sweep end -> arrival
+    window_sweeps: int = 1  # clouds integrated before clustering (1 measured best: docs/runtime.md)
+    learn_background: bool = True
+    ground_min_aspect: float = 0.55  # box height / width below which a LiDAR-first box-only fix takes no ground ray
 
     # bundle runtime key -> field (read by from_bundle)
     BUNDLE_KEYS = {"referee_season": "season", "robot_radius_m": "robot_radius_m", "cloud_queue_points": "cloud_queue_points", "cloud_queue_age_s": "cloud_queue_age_s",
-                   "depth_max_age_s": "depth_max_age_s", "hero_range_offset_m": "hero_range_offset_m", "team": "team", "sentry_xy": "sentry_xy"}  # fmt: skip
+                   "depth_max_age_s": "depth_max_age_s", "hero_range_offset_m": "hero_range_offset_m", "team": "team", "sentry_xy": "sentry_xy",
+                   "cloud_sweep_s": "cloud_sweep_s", "cloud_latency_s": "cloud_latency_s"}  # fmt: skip
     # the keys a new bundle lists with their defaults (what a station edits per match)
     LISTED_IN_NEW_BUNDLES = ("hero_range_offset_m", "cloud_queue_points", "cloud_queue_age_s", "referee_season")
 

@@ -51,7 +51,7 @@ def test_every_layout_puts_the_same_robots_on_the_field(frame0, tmp_path, capsys
         model = tmp_path / f"{layout}.onnx"
         _model(model, layout, boxes)
         out = tmp_path / f"{layout}.jsonl"
-        assert main(["run", "--replay", str(SAMPLE), "--detector", str(model), "--max-frames", "1", "--out", str(out), "--json"]) == 0, layout
+        assert main(["run", "--replay", str(SAMPLE), "--localise", "box", "--detector", str(model), "--max-frames", "1", "--out", str(out), "--json"]) == 0, layout
         placed[layout] = _robots(out)
     capsys.readouterr()
     ref = placed["yolov5"]
@@ -69,7 +69,7 @@ def test_one_layout_quick_and_status_line(frame0, tmp_path, capsys):
     model = tmp_path / "v8.onnx"
     _model(model, "yolov8", boxes)
     out = tmp_path / "o.jsonl"
-    assert main(["run", "--replay", str(SAMPLE), "--detector", str(model), "--max-frames", "2", "--out", str(out)]) == 0
+    assert main(["run", "--replay", str(SAMPLE), "--localise", "box", "--detector", str(model), "--max-frames", "2", "--out", str(out)]) == 0
     cap = capsys.readouterr()
     assert "yolov8" in cap.err and "(robot " in cap.err  # model summary line; detector stage in the status line
     robots = _robots(out)
@@ -93,7 +93,7 @@ def test_three_stages_through_the_cli(frame0, tmp_path, capsys):
     number = tmp_path / "number.onnx"
     make_grey_level_classifier(number, [0.0, 1.0], ["negative", "3"], 64)  # the sample's armour crops are dark: "negative"
     out = tmp_path / "o.jsonl"
-    assert main(["run", "--replay", str(SAMPLE), "--detector", str(model), "--armour", str(armour), "--armour-names", str(tmp_path / "armour.yaml"),
+    assert main(["run", "--replay", str(SAMPLE), "--localise", "box", "--detector", str(model), "--armour", str(armour), "--armour-names", str(tmp_path / "armour.yaml"),
                  "--number", str(number), "--max-frames", "1", "--out", str(out), "--json"]) == 0  # fmt: skip
     capsys.readouterr()
     first = json.loads(out.read_text().splitlines()[0])
