@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from radarcal import geometry
-from radarcal.extrinsics.radar_lidar import Pose2, build_scene_obs, calibrate_rig, fit_rigid_2d, procrustes_floor
+from radarcal.extrinsics.radar import Pose2, build_scene_obs, calibrate_rig, fit_rigid_2d, procrustes_floor
 from radarcal.synth.radar import RadarRigSpec, RadarSceneSpec, generate_radar_session
 
 # N = 4 reflectors (forward, lateral, apex height) relative to the main LiDAR's ground point
@@ -98,7 +98,7 @@ def slant_bias(height_diff: float = 0.5, model: str = "slant") -> dict:
 
 
 def tudelft(root) -> dict:
-    from radarcal.extrinsics.radar_lidar import board_reflector_centres, leave_one_out, slant_predict
+    from radarcal.extrinsics.radar import board_reflector_centres, leave_one_out, slant_predict
     from radarcal.io.radar import read_tudelft_accumulator, read_tudelft_example
 
     circ, rxy = read_tudelft_example(root / "optimization_example_data")
@@ -150,7 +150,7 @@ def main(argv: list[str]) -> int:
 
 
 def lidar_lidar(root) -> dict:
-    from radarcal.extrinsics.lidar_lidar import register_lidar
+    from radarcal.extrinsics.radar.lidar_lidar import register_lidar
     from radarcal.io import read_cloud
 
     top = read_cloud(root / "top.pcd").points.astype(float)

@@ -25,7 +25,7 @@ def radar_lidar(
     as_json: bool = JsonOpt,
 ) -> None:
     """Radar <-> radar, LiDAR <-> radar (corner reflectors) and LiDAR <-> LiDAR (GICP) into one bundle."""
-    from radarcal.extrinsics.radar_lidar import build_scene_obs, calibrate_rig
+    from radarcal.extrinsics.radar import build_scene_obs, calibrate_rig
     from radarcal.io import read_cloud
     from radarcal.io.radar import read_radar_session
 
@@ -66,7 +66,7 @@ def radar_lidar(
     lidar_regs = {}
     others = [n for n in rig.lidars if n != rig.main_lidar and clouds[n]]
     if others:
-        from radarcal.extrinsics.lidar_lidar import register_lidar
+        from radarcal.extrinsics.radar.lidar_lidar import register_lidar
 
         target = np.concatenate(clouds[rig.main_lidar])
         for n in others:
