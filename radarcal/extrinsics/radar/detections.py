@@ -12,23 +12,40 @@ from scipy.spatial import cKDTree
 __all__ = ["FilterResult", "aggregate_frames", "filter_detections", "quantisation_report"]
 
 
-def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.3) -> tuple[np.ndarray, np.ndarray]:
-    """Average repeated detections of one radar over many frames: greedy single-linkage clusters within ``gate``,
-    cluster means; clusters seen in fewer than ``min_fraction`` of the most-seen cluster's frames are dropped
-    (ghosts). Returns (means (K,2), counts (K,))."""
+def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.3, rcs: np.ndarray | None = None,
+                     rcs_split_db: float = 4.0) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Average repeated detections of one radar over many frames: single-linkage clusters within ``gate``, cluster
+    means; clusters seen in fewer than ``min_fraction`` of the most-seen cluster's frames are dropped (ghosts).
+
+    With ``rcs`` (dBsm per detection) a cluster whose RCS values have a gap wider than ``rcs_split_db`` is split
+    there (a ground-bounce multipath ghost sits a few decimetres behind its reflector, ~8 dB weaker, and would
+    otherwise be averaged into it), and the mean RCS of each cluster is returned too. Returns (means (K,2),
+    counts (K,)) or, with ``rcs``, (means, counts, mean RCS (K,))."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     if len(xy) == 0:
-        return xy, np.zeros(0, int)
+        return (xy, np.zeros(0, int)) if rcs is None else (xy, np.zeros(0, int), np.zeros(0))
     pairs = cKDTree(xy).query_pairs(gate, output_type="ndarray")
     from scipy.sparse import coo_matrix
 
     ncomp, lab = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(xy), len(xy))), directed=False)
+    if rcs is not None:
+        rc = np.asarray(rcs, float).reshape(-1)
+        rc = np.where(np.isfinite(rc), rc, 0.0)
+        order = np.lexsort((rc, lab))  # by cluster, then RCS
+        gap = np.r_[False, (np.diff(rc[order]) > rcs_split_db) & (np.diff(lab[order]) == 0)]
+        new = np.cumsum(np.r_[True, np.diff(lab[order]) != 0] | gap) - 1
+        lab = np.empty_like(lab)
+        lab[order] = new
+        ncomp = int(new.max()) + 1
     counts = np.bincount(lab, minlength=ncomp)
     sums = np.zeros((ncomp, 2))
     np.add.at(sums, lab, xy)
     means = sums / counts[:, None]
     keep = counts >= max(1, min_fraction * counts.max())
-    return means[keep], counts[keep]
+    if rcs is None:
+        return means[keep], counts[keep]
+    rmean = np.bincount(lab, weights=rc, minlength=ncomp) / counts
+    return means[keep], counts[keep], rmean[keep]
 
 
 @dataclass

@@ -154,6 +154,7 @@ def fit_rigid_2d(
     loss: str = "linear",
     f_scale: float = 0.05,
     sigma_meas: float | None = None,
+    weights: np.ndarray | None = None,
 ) -> Fit2D:
     """Nonlinear least squares for ``(theta, a, b)`` (and optionally the radar plane height).
 
@@ -162,7 +163,8 @@ def fit_rigid_2d(
     the slant range to a reflector ``dz = src_z - height`` above its plane (``height`` known, or estimated with
     ``estimate_height``; only ``|dz|`` is observable, so the solution nearest ``height_init`` is returned).
     Initialised in closed form (:func:`procrustes_2d`) unless ``init`` is given. ``sigma`` comes from the Gauss-Newton
-    covariance scaled by the residual variance (or by ``sigma_meas`` when given).
+    covariance scaled by the residual variance (or by ``sigma_meas`` when given). ``weights`` (N,): relative
+    inverse variances of the correspondences (e.g. from RCS); the residual variance is then that of unit weight.
     """
     src = np.asarray(src, float).reshape(-1, 2)
     dst = np.asarray(dst, float).reshape(-1, 2)
@@ -188,14 +190,16 @@ def fit_rigid_2d(
         h = x[3] if est_h else height
         return slant_predict(q, z - h)
 
+    sw = np.ones(len(src)) if weights is None else np.sqrt(np.asarray(weights, float).reshape(-1))
+
     def resid(x):
-        return (predict(x) - dst).ravel()
+        return ((predict(x) - dst) * sw[:, None]).ravel()
 
     sol = least_squares(resid, np.asarray(x0, float), method="trf" if loss != "linear" else "lm" if 2 * len(src) >= len(x0) else "trf",
                         loss=loss, f_scale=f_scale, x_scale="jac")
     x = sol.x
     r = dst - predict(x)
-    cov = _jac_cov(sol.jac, r.ravel(), sigma_meas)
+    cov = _jac_cov(sol.jac, (r * sw[:, None]).ravel(), sigma_meas)
     names = ["theta", "a", "b"] + (["height"] if est_h else [])
     sig = {k: float(np.sqrt(max(cov[i, i], 0.0))) for i, k in enumerate(names)}
     pose = Pose2(float(wrap_angle(x[0])), np.array(x[1:3]))

@@ -29,6 +29,7 @@ class LidarRegistration:
     correction_deg: float = 0.0  # rotation between the initial guess and the result
     correction_m: float = 0.0
     prealign: dict | None = None  # ground-plane pre-alignment (tilt fixed, m shifted), when used
+    T_start: np.ndarray | None = None  # the guess after the ground pre-alignment (what the registration started from)
 
 
 def ground_prealign(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, max_tilt_deg: float = 60.0, tol: float = 0.1) -> tuple[np.ndarray, dict]:
@@ -110,6 +111,7 @@ def register_lidar(
         except ValueError:
             pre = None
     stages = []
+    T_start = T.copy()
     for s in scales:
         v = voxel * s
         a, b = ps.voxel_down_sample(v), pt.voxel_down_sample(v)
@@ -127,4 +129,147 @@ def register_lidar(
         stages.append({"voxel_m": v, "max_corr_m": 2.5 * v, "fitness": float(res.fitness), "rmse_m": float(res.inlier_rmse)})
     f1, r1 = overlap_metrics(src, tgt, T, eval_distance)
     dR, dt = geometry.pose_error(T, T_init)
-    return LidarRegistration(T, method, f1, r1, f0, r0, eval_distance, stages, dR, dt, pre)
+    return LidarRegistration(T, method, f1, r1, f0, r0, eval_distance, stages, dR, dt, pre, T_start)
+
+
+def _voxel_first(points: np.ndarray, voxel: float) -> np.ndarray:
+    """One point per occupied voxel (the first), numpy only."""
+    if len(points) == 0:
+        return points
+    key = np.floor(points / voxel).astype(np.int64)
+    _, idx = np.unique(key, axis=0, return_index=True)
+    return points[np.sort(idx)]
+
+
+def _normals(points: np.ndarray, tree, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (smallest covariance eigenvector of the ``k`` nearest neighbours) and planarity in [0, 1]."""
+    _, nb = tree.query(points, k=min(k, len(tree.data)))
+    Q = tree.data[nb] - tree.data[nb].mean(axis=1, keepdims=True)
+    C = np.einsum("nki,nkj->nij", Q, Q)
+    ev, vec = np.linalg.eigh(C)
+    planar = (ev[:, 1] - ev[:, 0]) / np.maximum(ev[:, 2], 1e-18)
+    return vec[:, :, 0], planar
+
+
+@dataclass
+class LidarRefinement:
+    """Point-to-plane + reflector-point Gauss-Newton refinement of ``T_target_source`` and what it observes."""
+
+    T_target_source: np.ndarray
+    cov: np.ndarray  # (6,6) of the left perturbation (rotation about the source origin, rad; translation, m) in the target frame
+    sigma_rot_deg: np.ndarray  # (3,) marginal 1-sigma about the target's x, y, z
+    sigma_trans_m: np.ndarray  # (3,) along the target's x, y, z
+    worst_rot: tuple  # (1-sigma deg, unit axis in the target frame)
+    worst_trans: tuple  # (1-sigma m, unit direction in the target frame)
+    n_plane: int  # point-to-plane correspondences used
+    n_reflectors: int  # reflector pairs used
+    plane_rms_m: float
+    reflector_rms_m: float
+    reflector_pairs: list = field(default_factory=list)  # [(scene index, source index, target index, residual m)]
+
+
+def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, src_reflectors: list | None = None, tgt_reflectors: list | None = None,
+                           voxel: float = 0.2, max_corr: float = 0.3, reflector_gate: float = 0.3, reflector_sigma: float = 0.01, iterations: int = 15) -> LidarRefinement:
+    """Refine ``T_target_source`` with point-to-plane residuals (source voxel points against the target's local
+    planes, Huber-weighted) and, beside the geometry, the corner reflectors both LiDARs see as 3D point
+    constraints (``src_reflectors`` / ``tgt_reflectors``: per scene (K,3) apexes in each LiDAR's frame, matched as
+    mutual nearest neighbours within ``reflector_gate`` under the current estimate). Open ground and one wall leave
+    a direction unconstrained; the reflectors fix it. The covariance is the inverse information matrix scaled by the
+    residual variances (plane residuals at their robust RMS, reflectors at ``reflector_sigma`` or their RMS if
+    larger), from which the worst-observed rotation axis and translation direction are reported."""
+    from scipy.spatial import cKDTree
+
+    src = _voxel_first(np.asarray(source, float).reshape(-1, 3), voxel)
+    tgt_all = np.asarray(target, float).reshape(-1, 3)
+    tgt = _voxel_first(tgt_all, voxel / 2)
+    tree = cKDTree(tgt)
+    T = np.asarray(T_init, float).copy()
+    pairs_out = []
+
+    def reflector_pairs(T):
+        out = []
+        if not src_reflectors or not tgt_reflectors:
+            return out
+        for si, (a, b) in enumerate(zip(src_reflectors, tgt_reflectors)):
+            a = np.asarray(a, float).reshape(-1, 3)
+            b = np.asarray(b, float).reshape(-1, 3)
+            if len(a) == 0 or len(b) == 0:
+                continue
+            pa = geometry.transform_points(T, a)
+            d = np.linalg.norm(pa[:, None] - b[None], axis=2)
+            ja, ib = d.argmin(axis=1), d.argmin(axis=0)
+            for i in range(len(a)):
+                j = ja[i]
+                if ib[j] == i and d[i, j] < reflector_gate:
+                    out.append((si, i, int(j), a[i], b[j]))
+        return out
+
+    s_plane = max_corr / 3
+    for _it in range(iterations):  # Gauss-Newton (few iterations), each vectorised over the points
+        c = T[:3, 3]
+        ps = geometry.transform_points(T, src)
+        dist, nb = tree.query(ps, distance_upper_bound=max_corr)
+        ok = np.isfinite(dist)
+        n, planar = _normals(ps[ok], tree)
+        good = planar > 0.3
+        p_ok, q_ok, n = ps[ok][good], tgt[nb[ok][good]], n[good]
+        r = np.sum(n * (p_ok - q_ok), axis=1)
+        s_plane = max(1.4826 * float(np.median(np.abs(r))), 1e-3) if len(r) else s_plane
+        w = np.minimum(1.0, 2.0 * s_plane / np.maximum(np.abs(r), 1e-12))  # Huber
+        J = np.concatenate([np.cross(p_ok - c, n), n], axis=1)
+        H = (J * (w / s_plane**2)[:, None]).T @ J
+        g = (J * (w * r / s_plane**2)[:, None]).sum(axis=0)
+        rp = reflector_pairs(T)
+        s_ref = reflector_sigma
+        if rp:
+            A = np.array([x[3] for x in rp])
+            B = np.array([x[4] for x in rp])
+            pa = geometry.transform_points(T, A)
+            e = pa - B
+            s_ref = max(reflector_sigma, float(np.sqrt(np.mean(e**2))) if len(rp) > 2 else reflector_sigma)
+            for k in range(len(rp)):  # few reflectors
+                Jr = np.concatenate([-_skew(pa[k] - c), np.eye(3)], axis=1)
+                H += Jr.T @ Jr / s_ref**2
+                g += Jr.T @ e[k] / s_ref**2
+        try:
+            delta = -np.linalg.solve(H + 1e-9 * np.eye(6) * max(np.trace(H), 1.0), g)
+        except np.linalg.LinAlgError:
+            break
+        # step limited along poorly observed directions (they stay where GICP put them)
+        dR = geometry.rotvec_to_R(delta[:3])
+        T_new = np.eye(4)
+        T_new[:3, :3] = dR @ T[:3, :3]
+        T_new[:3, 3] = dR @ (T[:3, 3] - c) + c + delta[3:]
+        T = T_new
+        if np.linalg.norm(delta[:3]) < 1e-7 and np.linalg.norm(delta[3:]) < 1e-6:
+            break
+    try:
+        cov = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        cov = np.full((6, 6), np.inf)
+    rp = reflector_pairs(T)
+    if rp:
+        e = np.linalg.norm(geometry.transform_points(T, np.array([x[3] for x in rp])) - np.array([x[4] for x in rp]), axis=1)
+        pairs_out = [(x[0], x[1], x[2], float(ei)) for x, ei in zip(rp, e)]
+    ref_rms = float(np.sqrt(np.mean([p[3] ** 2 for p in pairs_out]))) if pairs_out else float("nan")
+
+    def worst(block):
+        ev, vec = np.linalg.eigh(block)
+        return float(np.sqrt(max(ev[-1], 0.0))), vec[:, -1] * np.sign(vec[np.argmax(np.abs(vec[:, -1])), -1])
+
+    sr, st = worst(cov[:3, :3]), worst(cov[3:, 3:])
+    return LidarRefinement(T, cov, np.degrees(np.sqrt(np.maximum(np.diag(cov)[:3], 0))), np.sqrt(np.maximum(np.diag(cov)[3:], 0)),
+                           (float(np.degrees(sr[0])), sr[1]), st, len(r), len(rp), float(s_plane), ref_rms, pairs_out)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def axis_name(v: np.ndarray, frame: str) -> str:
+    """``"y of lidar_front"`` for a direction within 10 deg of an axis, else the vector."""
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    k = int(np.argmax(np.abs(v)))
+    if abs(v[k]) > np.cos(np.radians(10)):
+        return f"{'xyz'[k]} of {frame}"
+    return f"({v[0]:.2f}, {v[1]:.2f}, {v[2]:.2f}) in {frame}"

@@ -68,6 +68,7 @@ class SceneObs:
     radar_xy: dict  # radar name -> (M,2)
     ground: GroundPlane | None = None
     raw_radar_xy: dict | None = None  # before frame averaging (for the quantisation report)
+    radar_rcs: dict | None = None  # radar name -> (M,) mean RCS (dBsm) of each entry of radar_xy, or None
 
 
 @dataclass
@@ -98,8 +99,9 @@ class RigCalibration:
 
 
 def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant):
-    """Mutual-NN matches of one radar's detections with the LiDAR reflectors under ``pose_G`` (T_G_radar)."""
-    src, dst, z, info = [], [], [], []
+    """Mutual-NN matches of one radar's detections with the LiDAR reflectors under ``pose_G`` (T_G_radar); the
+    matched detections' RCS (NaN when unknown) is the fifth return value."""
+    src, dst, z, info, rcs = [], [], [], [], []
     inv = pose_G.inverse()
     for si, sc in enumerate(scenes):
         m = np.asarray(sc.radar_xy.get(name, np.zeros((0, 2))), float).reshape(-1, 2)
@@ -109,9 +111,23 @@ def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant):
         q = inv.apply(pg[:, :2])
         pred = slant_predict(q, pg[:, 2] - mount_h) if slant else q
         pairs = mutual_nn(pred, m, gate)
+        rc = (sc.radar_rcs or {}).get(name)
         for i, j in pairs:
             src.append(pg[i, :2]), dst.append(m[j]), z.append(pg[i, 2]), info.append((sc.name, int(i), int(j)))
-    return np.array(src).reshape(-1, 2), np.array(dst).reshape(-1, 2), np.array(z), info
+            rcs.append(np.nan if rc is None else float(rc[j]))
+    return np.array(src).reshape(-1, 2), np.array(dst).reshape(-1, 2), np.array(z), info, np.array(rcs)
+
+
+def rcs_weights(rcs: np.ndarray, floor: float = 1e-3) -> np.ndarray:
+    """Relative inverse variances of radar detections from their RCS (dBsm): a radar's position noise grows as the
+    echo weakens (variance ~ 1 / SNR ~ 10^(-RCS/10)); relative to the 90th percentile of the matched detections'
+    RCS, capped at 1 (strong echoes all count the same), ``floor`` below. Ones when the RCS is unknown."""
+    rcs = np.asarray(rcs, float)
+    if len(rcs) == 0 or not np.isfinite(rcs).any():
+        return np.ones(len(rcs))
+    ref = float(np.nanpercentile(rcs, 90))
+    w = 10 ** ((np.where(np.isfinite(rcs), rcs, ref) - ref) / 10)
+    return np.clip(w, floor, 1.0)
 
 
 def calibrate_rig(
@@ -126,6 +142,7 @@ def calibrate_rig(
     lateral: tuple[float, float] = (-5.0, 5.0),
     outlier_threshold: float = 0.15,
     joint: bool = True,
+    lidar_range_gate: float | None = 4.0,
     ground: GroundPlane | None = None,
 ) -> RigCalibration:
     """Every radar into the main LiDAR frame (patent steps 2-5, then the improvements).
@@ -234,19 +251,20 @@ def calibrate_rig(
     for r in list(pose_G):
         h = heights[r] if heights[r] is not None else h_guess
         for _ in range(3):
-            s_, d_, z_, info = _obs_for_radar(scenes, lidar_G, r, pose_G[r], h, gate, slant)
+            s_, d_, z_, info, rc_ = _obs_for_radar(scenes, lidar_G, r, pose_G[r], h, gate, slant)
             if len(s_) < 2:
                 break
+            w_ = rcs_weights(rc_)
             kw = _fit_kw(slant, heights[r], h)
-            keep, rej = reject_outliers(s_, d_, threshold=outlier_threshold, **({**kw, "src_z": z_} if slant else kw))
-            f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, **kw)
+            keep, rej = reject_outliers(s_, d_, threshold=outlier_threshold, weights=w_, **({**kw, "src_z": z_} if slant else kw))
+            f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, weights=w_[keep], **kw)
             # f maps G -> radar; pose_G is radar -> G
             new = f.pose.inverse()
             h = f.height if f.height is not None else h
             converged = abs(_wrap(new.theta - pose_G[r].theta)) < 1e-10 and np.allclose(new.t, pose_G[r].t, atol=1e-9)
             pose_G[r] = new
             fits[r] = f
-            keepinfo[r] = (s_, d_, z_, info, keep, rej, kw)
+            keepinfo[r] = (s_, d_, z_, info, keep, rej, kw, w_, rc_)
             if converged:
                 break
         if r not in fits:
@@ -260,20 +278,23 @@ def calibrate_rig(
 
         def in_region(p_G):
             q = ref_inv.apply(p_G)
-            return (q[:, 0] > forward[0]) & (q[:, 0] < forward[1]) & (q[:, 1] > lateral[0]) & (q[:, 1] < lateral[1])
+            inside = (q[:, 0] > forward[0]) & (q[:, 0] < forward[1]) & (q[:, 1] > lateral[0]) & (q[:, 1] < lateral[1])
+            if lidar_range_gate is not None:  # inside the LiDAR's range gate a reflector would have a LiDAR cluster
+                inside &= np.linalg.norm(p_G, axis=1) > lidar_range_gate - 0.2
+            return inside
 
         pose_G, heights, joint_info = _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate, z_nominal, in_region)
     # --- results ------------------------------------------------------------------------------------------------
     for r in fits:
-        s_, d_, z_, info, keep, rej, kw = keepinfo[r]
+        s_, d_, z_, info, keep, rej, kw, w_, rc_ = keepinfo[r]
         h = heights[r]
         kw2 = _fit_kw(slant, h, h)
         # LiDAR-anchored fit at the final height: sigma and leave-one-out; the pose is the joint one (same when no
         # radar-only reflectors exist)
-        f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, init=pose_G[r].inverse(), **kw2)
+        f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, init=pose_G[r].inverse(), weights=w_[keep], **kw2)
         if not joint_info.get("free_points"):
             pose_G[r] = f.pose.inverse()
-        loo = leave_one_out(s_[keep], d_[keep], **({**kw2, "src_z": z_[keep]} if slant else kw2))
+        loo = leave_one_out(s_[keep], d_[keep], weights=w_[keep], **({**kw2, "src_z": z_[keep]} if slant else kw2))
         q = pose_G[r].inverse().apply(s_)
         pred = slant_predict(q, z_ - h) if slant else q
         res_vec = d_ - pred
@@ -332,6 +353,10 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
                 continue
             used = {j for (scn, i, j), kp in zip(keepinfo[r][3], keepinfo[r][4]) if scn == sc.name}
             un = np.array([j for j in range(len(m)) if j not in used], int)
+            rc = (sc.radar_rcs or {}).get(r)
+            if rc is not None and len(un) and np.isfinite(keepinfo[r][8]).any():
+                # weak echoes (clutter, multipath) are not radar-only reflectors
+                un = un[np.asarray(rc, float)[un] >= np.nanpercentile(keepinfo[r][8], 10) - 6.0]
             if len(un) == 0:
                 continue
             h = heights[r] if heights[r] is not None else 0.0
@@ -361,8 +386,8 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
     x0 = np.concatenate([np.concatenate([pose_G[r].as_array() for r in names]), np.array([heights[r] or 0.0 for r in names]), np.array(free_init).ravel()])
     anchored = []
     for k, r in enumerate(names):
-        s_, d_, z_, info, keep, rej, kw = keepinfo[r]
-        anchored.append((k, s_[keep], d_[keep], z_[keep]))
+        s_, d_, z_, info, keep, rej, kw, w_, _ = keepinfo[r]
+        anchored.append((k, s_[keep], d_[keep], z_[keep], np.sqrt(w_[keep])[:, None]))
     fo_r = np.array([o[0] for o in free_obs], int)
     fo_f = np.array([o[1] for o in free_obs], int)
     fo_m = np.array([o[2] for o in free_obs]).reshape(-1, 2)
@@ -382,8 +407,8 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
     def resid(x):
         P, H, F = unpack(x)
         out = []
-        for k, s_, d_, z_ in anchored:  # loop over radars
-            out.append((pred_radar(P, H, k, s_, z_) - d_).ravel())
+        for k, s_, d_, z_, sw in anchored:  # loop over radars
+            out.append(((pred_radar(P, H, k, s_, z_) - d_) * sw).ravel())
         for k in range(nr):
             sel = fo_r == k
             if sel.any():
@@ -411,19 +436,28 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
 
 
 def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_gate: float = 4.0, ground_tol: float = 0.05, cluster_tol: float = 0.12,
-                    head_size: float = 0.35, offset: float = 0.0, aggregate: bool = True, aggregate_gate: float = 0.3) -> tuple[SceneObs, ReflectorExtraction, dict]:
-    """One placement's observations from raw arrays: reflector extraction on the main LiDAR cloud and, when a radar
-    reported several frames, averaging of its repeated detections (:func:`aggregate_frames`). Returns the
-    :class:`SceneObs`, the extraction details and per-radar frame counts."""
-    ext = extract_reflectors(main_points, range_gate=range_gate, ground_tol=ground_tol, cluster_tol=cluster_tol, head_size=head_size, offset=offset)
-    out, counts = {}, {}
+                    head_size: float = 0.35, offset: float = 0.0, aggregate: bool = True, aggregate_gate: float = 0.3, radar_rcs: dict | None = None,
+                    edge: float | None = None, intensity: np.ndarray | None = None) -> tuple[SceneObs, ReflectorExtraction, dict]:
+    """One placement's observations from raw arrays: reflector extraction on the main LiDAR cloud (``edge``: the
+    trihedral's edge when known, ``intensity`` per point when the cloud has it) and, when a radar reported several
+    frames, averaging of its repeated detections (:func:`aggregate_frames`, split by RCS when ``radar_rcs`` gives
+    it). Returns the :class:`SceneObs`, the extraction details and per-radar frame counts."""
+    ext = extract_reflectors(main_points, range_gate=range_gate, ground_tol=ground_tol, cluster_tol=cluster_tol, head_size=head_size, offset=offset,
+                             edge=edge, intensity=intensity)
+    out, counts, rcs_out = {}, {}, {}
     for r, xy in radar_xy.items():
         xy = np.asarray(xy, float).reshape(-1, 2)
+        rc = None if radar_rcs is None or radar_rcs.get(r) is None else np.asarray(radar_rcs[r], float).reshape(-1)
+        if rc is not None and not np.isfinite(rc).any():
+            rc = None
         if aggregate and len(xy):
-            means, c = aggregate_frames(xy, gate=aggregate_gate)
+            if rc is not None:
+                means, c, rm = aggregate_frames(xy, gate=aggregate_gate, rcs=rc)
+            else:
+                (means, c), rm = aggregate_frames(xy, gate=aggregate_gate), None
             if c.max() > 1:
-                out[r], counts[r] = means, c
+                out[r], counts[r], rcs_out[r] = means, c, rm
                 continue
-        out[r], counts[r] = xy, np.ones(len(xy), int)
+        out[r], counts[r], rcs_out[r] = xy, np.ones(len(xy), int), rc
     raw = {r: np.asarray(xy, float).reshape(-1, 2) for r, xy in radar_xy.items()}
-    return SceneObs(name, ext.centres, out, ext.ground, raw), ext, counts
+    return SceneObs(name, ext.centres, out, ext.ground, raw, rcs_out), ext, counts
