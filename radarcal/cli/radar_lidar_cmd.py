@@ -56,7 +56,8 @@ def radar_lidar(
 
 
 def _human(s: dict) -> None:
-    typer.echo(f"radar-lidar: {s['scenes']} placement(s), main LiDAR {s['main_lidar']}, model {s['model']} (LiDAR {s['ground']['lidar_height_m']:.3f} m above the fitted ground)")
+    ground = f", model {s['model']} (LiDAR {s['ground']['lidar_height_m']:.3f} m above the fitted ground)" if s["radars"] else ""
+    typer.echo(f"radar-lidar: {s['scenes']} placement(s), main LiDAR {s['main_lidar']}{ground}")
     for name, c in s["filter_counts"].items():
         typer.echo(f"  scene {name}: {s['reflectors_per_scene'][name]} LiDAR reflector(s); radar detections A={c['A']} B={c['B']} C={c['C']}")
         for r, labels in s["detections"].get(name, {}).items():

@@ -393,15 +393,16 @@ def read_opencalib_lidar2lidar(folder: Path) -> RadarSessionInput:
                 raise InputError(init_path, f"line {ln}: expected 6 numbers (roll pitch yaw tx ty tz)")
             roll, pitch, yaw, tx, ty, tz = (_num(v, init_path, ln, "value") for v in vals)
             guesses[dev] = geometry.T_from_xyz_rpy_deg(tx, ty, tz, roll, pitch, yaw)
-    files = {}
-    for ln, line in enumerate(read_text(paths_path).splitlines(), start=1):
-        if ":" in line or "," in line or line.strip():
-            parts = line.replace(",", " ").replace(":", " ").split()
-            if len(parts) >= 2:
-                try:
-                    files[int(parts[0])] = folder / Path(parts[1]).name
-                except ValueError:
-                    continue
+    files, dev = {}, None
+    for ln, line in enumerate(read_text(paths_path).splitlines(), start=1):  # "device_id: N" then "path: <file>"
+        key, _, val = line.partition(":")
+        if key.strip() == "device_id":
+            try:
+                dev = int(val)
+            except ValueError:
+                raise InputError(paths_path, f"line {ln}: bad device_id") from None
+        elif key.strip() == "path" and dev is not None:
+            files[dev] = folder / Path(val.strip()).name
     if 0 not in files or len(files) < 2:
         raise InputError(paths_path, "expected device ids 0 (main) and at least one more with their cloud files")
     names = {d: p.stem for d, p in files.items()}

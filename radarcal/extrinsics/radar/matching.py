@@ -71,6 +71,13 @@ def robust_match_sets(
         ds = np.linalg.norm(src[i1] - src[i2], axis=1)
         dd = np.linalg.norm(dst[j1] - dst[j2], axis=1)
         ok = (np.abs(ds[:, None] - dd[None, :]) < gate) & (ds[:, None] > min_pair_distance)
+        if ok.sum() > max_hypotheses:  # many points: whole src pairs (seeded random order) until the budget is used,
+            rows = np.random.default_rng(1).permutation(len(ok))  # so each chosen pair keeps all its dst partners
+            take = np.cumsum(ok[rows].sum(axis=1)) <= max_hypotheses
+            take[:4] = True
+            keep_rows = np.zeros(len(ok), bool)
+            keep_rows[rows[take]] = True
+            ok &= keep_rows[:, None]
         pi, pj = np.nonzero(ok)
         va = src[i2[pi]] - src[i1[pi]]
         vb = dst[j2[pj]] - dst[j1[pj]]

@@ -185,10 +185,12 @@ def calibrate_rig(
 
     # unknown height: start below the reflectors (bumper height); dz = 0 is a stationary point of the slant model
     h_guess = 0.5 if abs(z_nominal - 0.5) > 0.15 else z_nominal - 0.4
+    if slant and ground is None:  # heights are LiDAR z: no bumper height to start from; 0.4 m below the reflectors
+        h_guess = z_nominal - 0.4
 
     def _desl(name, m):
-        if not slant:
-            return np.asarray(m, float).reshape(-1, 2)
+        if not slant or (heights[name] is None and ground is None):
+            return np.asarray(m, float).reshape(-1, 2)  # unknown plane height: match on the raw (slant) positions
         h = heights[name] if heights[name] is not None else h_guess
         return deslant(m, z_nominal - h)
 
@@ -270,6 +272,13 @@ def calibrate_rig(
         if r not in fits:
             notes.append(f"{r}: fewer than 2 reflectors matched to the LiDAR: not calibrated")
         if r in fits and heights[r] is None and slant:
+            # only |dz| is observable, but the slant model is not exactly symmetric: try the mirror height too
+            s_, d_, z_, info, keep, rej, kw, w_, rc_ = keepinfo[r]
+            zc = float(np.average(z_[keep], weights=w_[keep]))
+            g = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep], weights=w_[keep], estimate_height=True, height_init=2 * zc - fits[r].height)
+            if g.rms < fits[r].rms - 1e-9:
+                fits[r] = g
+                pose_G[r] = g.pose.inverse()
             heights[r] = float(fits[r].height)
     # --- joint refinement: all radars at once, radar-only reflectors as free 2D points ----------------------------
     joint_info = {"enabled": bool(joint), "free_points": 0, "n_obs": 0}
