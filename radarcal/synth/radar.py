@@ -395,8 +395,9 @@ def _jsonable(o):
     return o
 
 
-def write_radar_session(session: RadarSession, out: str | Path) -> Path:
-    """Write ``rig.yaml``, ``scenes/<k>/<lidar>.pcd``, ``scenes/<k>/radar.csv`` and ``truth.json`` under ``out``."""
+def write_radar_session(session: RadarSession, out: str | Path, radar_format: str = "csv") -> Path:
+    """Write ``rig.yaml``, ``scenes/<k>/<lidar>.pcd``, ``scenes/<k>/radar.csv`` (or, with ``radar_format="ars408"``,
+    one ARS408-style object list ``scenes/<k>/<radar>.csv`` per radar) and ``truth.json`` under ``out``."""
     from radarcal.io.clouds import write_pcd
 
     out = Path(out)
@@ -408,6 +409,14 @@ def write_radar_session(session: RadarSession, out: str | Path) -> Path:
         for lname, pts in sc["clouds"].items():
             write_pcd(d / f"{lname}.pcd", pts, sc.get("intensity", {}).get(lname))
         r = sc["radar"]
+        if radar_format == "ars408":
+            names = np.array(r["radar"])
+            for rn in dict.fromkeys(r["radar"]):
+                sel = names == rn
+                rows = ["time_ns,track_id,velocity_x,velocity_y,position_x,position_y,dynprop,rcs"]
+                rows += [f"{i},{i},0.0,0.0,{x:.6f},{y:.6f},1,{c:.1f}" for i, ((x, y), c) in enumerate(zip(r["xy"][sel], r["rcs"][sel]))]
+                (d / f"{rn}.csv").write_text("\n".join(rows) + "\n", encoding="utf-8")
+            continue
         lines = ["radar,x,y,rcs,velocity"] + [f"{n},{x:.9f},{y:.9f},{c:.2f},{v:.3f}" for n, (x, y), c, v in zip(r["radar"], r["xy"], r["rcs"], r["velocity"])]
         (d / "radar.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
     (out / "truth.json").write_text(json.dumps(session.truth, indent=1), encoding="utf-8")

@@ -17,8 +17,8 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
     """Average repeated detections of one radar over many frames: single-linkage clusters within ``gate``, cluster
     means; clusters seen in fewer than ``min_fraction`` of the most-seen cluster's frames are dropped (ghosts).
 
-    With ``rcs`` (dBsm per detection) a cluster whose RCS values have a gap wider than ``rcs_split_db`` is split
-    there (a ground-bounce multipath ghost sits a few decimetres behind its reflector, ~8 dB weaker, and would
+    With ``rcs`` (dBsm per detection) a cluster whose RCS values form two classes more than ``rcs_split_db`` (and
+    3 within-class sigma) apart is split in two (a ground-bounce multipath ghost sits a few decimetres behind its reflector, ~8 dB weaker, and would
     otherwise be averaged into it), and the mean RCS of each cluster is returned too. Returns (means (K,2),
     counts (K,)) or, with ``rcs``, (means, counts, mean RCS (K,))."""
     xy = np.asarray(xy, float).reshape(-1, 2)
@@ -31,12 +31,23 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
     if rcs is not None:
         rc = np.asarray(rcs, float).reshape(-1)
         rc = np.where(np.isfinite(rc), rc, 0.0)
-        order = np.lexsort((rc, lab))  # by cluster, then RCS
-        gap = np.r_[False, (np.diff(rc[order]) > rcs_split_db) & (np.diff(lab[order]) == 0)]
-        new = np.cumsum(np.r_[True, np.diff(lab[order]) != 0] | gap) - 1
-        lab = np.empty_like(lab)
-        lab[order] = new
-        ncomp = int(new.max()) + 1
+        lab = lab.copy()
+        for c in range(ncomp):  # clusters (few): two RCS classes (least within-class variance) when clearly apart
+            idx = np.nonzero(lab == c)[0]
+            if len(idx) < 4:
+                continue
+            v = np.sort(rc[idx])
+            k = np.arange(2, len(v) - 1)  # split after the k lowest (each class >= 2)
+            if len(k) == 0:
+                continue
+            cs, cs2 = np.cumsum(v), np.cumsum(v**2)
+            lo_m, hi_m = cs[k - 1] / k, (cs[-1] - cs[k - 1]) / (len(v) - k)
+            within = (cs2[-1] - k * lo_m**2 - (len(v) - k) * hi_m**2) / len(v)
+            b = int(np.argmin(within))
+            diff = hi_m[b] - lo_m[b]
+            if diff > rcs_split_db and diff > 3 * np.sqrt(max(within[b], 0.0)):
+                lab[idx[rc[idx] < v[k[b]]]] = ncomp
+                ncomp += 1
     counts = np.bincount(lab, minlength=ncomp)
     sums = np.zeros((ncomp, 2))
     np.add.at(sums, lab, xy)

@@ -169,14 +169,16 @@ class LidarRefinement:
 
 
 def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.ndarray, src_reflectors: list | None = None, tgt_reflectors: list | None = None,
-                           voxel: float = 0.2, max_corr: float = 0.3, reflector_gate: float = 0.3, reflector_sigma: float = 0.01, iterations: int = 15) -> LidarRefinement:
+                           voxel: float = 0.2, max_corr: float = 0.3, reflector_gate: float = 0.3, reflector_sigma: float = 0.01, iterations: int = 15,
+                           plane_sigma_floor: float = 0.01) -> LidarRefinement:
     """Refine ``T_target_source`` with point-to-plane residuals (source voxel points against the target's local
     planes, Huber-weighted) and, beside the geometry, the corner reflectors both LiDARs see as 3D point
     constraints (``src_reflectors`` / ``tgt_reflectors``: per scene (K,3) apexes in each LiDAR's frame, matched as
     mutual nearest neighbours within ``reflector_gate`` under the current estimate). Open ground and one wall leave
     a direction unconstrained; the reflectors fix it. The covariance is the inverse information matrix scaled by the
-    residual variances (plane residuals at their robust RMS, reflectors at ``reflector_sigma`` or their RMS if
-    larger), from which the worst-observed rotation axis and translation direction are reported."""
+    residual variances (plane residuals at their robust RMS but at least ``plane_sigma_floor``: neighbouring
+    correspondences are not independent and two samplings of a surface differ by more than the range noise;
+    reflectors at ``reflector_sigma`` or their RMS if larger), from which the worst-observed rotation axis and translation direction are reported."""
     from scipy.spatial import cKDTree
 
     src = _voxel_first(np.asarray(source, float).reshape(-1, 3), voxel)
@@ -205,7 +207,9 @@ def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.nd
         return out
 
     s_plane = max_corr / 3
-    for _it in range(iterations):  # Gauss-Newton (few iterations), each vectorised over the points
+    final = False  # the last pass only evaluates the information at the solution (reflectors at their own RMS)
+    for _it in range(iterations + 1):  # Gauss-Newton (few iterations), each vectorised over the points
+        final = final or _it == iterations
         c = T[:3, 3]
         ps = geometry.transform_points(T, src)
         dist, nb = tree.query(ps, distance_upper_bound=max_corr)
@@ -214,7 +218,7 @@ def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.nd
         good = planar > 0.3
         p_ok, q_ok, n = ps[ok][good], tgt[nb[ok][good]], n[good]
         r = np.sum(n * (p_ok - q_ok), axis=1)
-        s_plane = max(1.4826 * float(np.median(np.abs(r))), 1e-3) if len(r) else s_plane
+        s_plane = max(1.4826 * float(np.median(np.abs(r))), plane_sigma_floor) if len(r) else s_plane
         w = np.minimum(1.0, 2.0 * s_plane / np.maximum(np.abs(r), 1e-12))  # Huber
         J = np.concatenate([np.cross(p_ok - c, n), n], axis=1)
         H = (J * (w / s_plane**2)[:, None]).T @ J
@@ -226,11 +230,13 @@ def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.nd
             B = np.array([x[4] for x in rp])
             pa = geometry.transform_points(T, A)
             e = pa - B
-            s_ref = max(reflector_sigma, float(np.sqrt(np.mean(e**2))) if len(rp) > 2 else reflector_sigma)
+            s_ref = max(reflector_sigma, float(np.sqrt(np.mean(e**2)))) if final and len(rp) > 2 else reflector_sigma
             for k in range(len(rp)):  # few reflectors
                 Jr = np.concatenate([-_skew(pa[k] - c), np.eye(3)], axis=1)
                 H += Jr.T @ Jr / s_ref**2
                 g += Jr.T @ e[k] / s_ref**2
+        if final:
+            break
         try:
             delta = -np.linalg.solve(H + 1e-9 * np.eye(6) * max(np.trace(H), 1.0), g)
         except np.linalg.LinAlgError:
@@ -242,7 +248,7 @@ def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.nd
         T_new[:3, 3] = dR @ (T[:3, 3] - c) + c + delta[3:]
         T = T_new
         if np.linalg.norm(delta[:3]) < 1e-7 and np.linalg.norm(delta[3:]) < 1e-6:
-            break
+            final = True
     try:
         cov = np.linalg.inv(H)
     except np.linalg.LinAlgError:
