@@ -176,18 +176,22 @@ def lidar_lidar(root) -> dict:
 
 
 # --- sessions with the held-out features (issue 18), through the code path of the command -------------------------
-def ideal_fit_error(ses, radar: str) -> tuple[float, float]:
+def ideal_fit_error(ses, radar: str, range_gate: float = 4.0) -> tuple[float, float]:
     """(yaw deg, position m) error of the ideal least-squares fit on the same detections: every detection of a true
-    reflector (generator labels) against its true apex, slant model at the true mounting height, weighted by the
-    generator's own per-detection sigma (the best linear unbiased estimate)."""
+    reflector (generator labels) that the LiDAR can see (within its ``range_gate``, horizontally) against its true
+    apex, slant model at the true mounting height, weighted by the generator's own per-detection sigma (the best
+    linear unbiased estimate)."""
     T_v_r = np.array(ses.truth["T_vehicle_sensor"][radar])
+    main_xy = np.array(ses.truth["T_vehicle_sensor"][ses.truth["main_lidar"]])[:2, 3]
     src, dst, z, w = [], [], [], []
     for sc, tr in zip(ses.scenes, ses.truth["scenes"]):
         names = np.array(sc["radar"]["radar"])
         lab = np.array(tr["detection_label"])
         sig = np.array([np.nan if v is None else v for v in tr["detection_sigma_m"]])
         ap = np.array(tr["apex_vehicle"])
+        seen = np.linalg.norm(ap[:, :2] - main_xy, axis=1) <= range_gate
         sel = (names == radar) & (lab >= 0)
+        sel[sel] = seen[lab[sel]]
         src.append(ap[lab[sel], :2]), z.append(ap[lab[sel], 2]), dst.append(sc["radar"]["xy"][sel]), w.append(1 / sig[sel] ** 2)
     src, dst, z, w = map(np.concatenate, (src, dst, z, w))
     f = fit_rigid_2d(src, dst, src_z=z, height=ses.truth["radar_mount_height_m"][radar], weights=w / w.mean())

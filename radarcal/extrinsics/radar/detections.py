@@ -32,7 +32,9 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
         rc = np.asarray(rcs, float).reshape(-1)
         rc = np.where(np.isfinite(rc), rc, 0.0)
         lab = lab.copy()
-        for c in range(ncomp):  # clusters (few): two RCS classes (least within-class variance) when clearly apart
+        queue = list(range(ncomp))
+        while queue:  # clusters (few): two RCS classes (least within-class variance) when clearly apart, recursively
+            c = queue.pop()
             idx = np.nonzero(lab == c)[0]
             if len(idx) < 4:
                 continue
@@ -47,6 +49,7 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
             diff = hi_m[b] - lo_m[b]
             if diff > rcs_split_db and diff > 3 * np.sqrt(max(within[b], 0.0)):
                 lab[idx[rc[idx] < v[k[b]]]] = ncomp
+                queue += [c, ncomp]
                 ncomp += 1
     counts = np.bincount(lab, minlength=ncomp)
     sums = np.zeros((ncomp, 2))

@@ -56,6 +56,8 @@ from radarcal.extrinsics.radar.reflectors import (
 )
 from radarcal.extrinsics.radar.validation import leave_one_out, reject_outliers
 
+K_SIGMA = 3.0  # outlier rule: a hold-out residual (at unit weight) beyond this many times the others' RMS (4 before issue 18)
+
 __all__ = ["RadarResult", "RigCalibration", "SceneObs", "build_scene_obs", "calibrate_rig"]
 
 
@@ -69,6 +71,7 @@ class SceneObs:
     ground: GroundPlane | None = None
     raw_radar_xy: dict | None = None  # before frame averaging (for the quantisation report)
     radar_rcs: dict | None = None  # radar name -> (M,) mean RCS (dBsm) of each entry of radar_xy, or None
+    radar_counts: dict | None = None  # radar name -> (M,) frames averaged into each entry of radar_xy (None: 1 each)
 
 
 @dataclass
@@ -101,7 +104,7 @@ class RigCalibration:
 def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant):
     """Mutual-NN matches of one radar's detections with the LiDAR reflectors under ``pose_G`` (T_G_radar); the
     matched detections' RCS (NaN when unknown) is the fifth return value."""
-    src, dst, z, info, rcs = [], [], [], [], []
+    src, dst, z, info, rcs, cnt = [], [], [], [], [], []
     inv = pose_G.inverse()
     for si, sc in enumerate(scenes):
         m = np.asarray(sc.radar_xy.get(name, np.zeros((0, 2))), float).reshape(-1, 2)
@@ -112,10 +115,12 @@ def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant):
         pred = slant_predict(q, pg[:, 2] - mount_h) if slant else q
         pairs = mutual_nn(pred, m, gate)
         rc = (sc.radar_rcs or {}).get(name)
+        nc = (sc.radar_counts or {}).get(name)
         for i, j in pairs:
             src.append(pg[i, :2]), dst.append(m[j]), z.append(pg[i, 2]), info.append((sc.name, int(i), int(j)))
             rcs.append(np.nan if rc is None else float(rc[j]))
-    return np.array(src).reshape(-1, 2), np.array(dst).reshape(-1, 2), np.array(z), info, np.array(rcs)
+            cnt.append(1 if nc is None else int(nc[j]))
+    return np.array(src).reshape(-1, 2), np.array(dst).reshape(-1, 2), np.array(z), info, np.array(rcs), np.array(cnt, float)
 
 
 def rcs_weights(rcs: np.ndarray, floor: float = 1e-3) -> np.ndarray:
@@ -242,6 +247,12 @@ def calibrate_rig(
     results: dict[str, RadarResult] = {}
     pose_G = dict(patent_G)
     for r in radar_names:
+        if r in pose_G and r in init_G:  # a patent chain far from the radar's own guess: a wrong match, start from the guess
+            d_th = abs(float(_wrap(pose_G[r].theta - init_G[r].theta)))
+            d_t = float(np.linalg.norm(pose_G[r].t - init_G[r].t))
+            if d_th > np.radians(10.0) or d_t > 0.5:
+                notes.append(f"{r}: the radar-radar chain is {np.degrees(d_th):.1f} deg / {d_t:.2f} m from its initial_T_main: matched from the guess instead")
+                pose_G[r] = init_G[r]
         if r not in pose_G:
             if r in init_G:
                 pose_G[r] = init_G[r]
@@ -253,12 +264,12 @@ def calibrate_rig(
     for r in list(pose_G):
         h = heights[r] if heights[r] is not None else h_guess
         for _ in range(3):
-            s_, d_, z_, info, rc_ = _obs_for_radar(scenes, lidar_G, r, pose_G[r], h, gate, slant)
+            s_, d_, z_, info, rc_, n_ = _obs_for_radar(scenes, lidar_G, r, pose_G[r], h, gate, slant)
             if len(s_) < 2:
                 break
-            w_ = rcs_weights(rc_)
+            w_ = rcs_weights(rc_) * n_  # a mean of n frames counts n times
             kw = _fit_kw(slant, heights[r], h)
-            keep, rej = reject_outliers(s_, d_, threshold=outlier_threshold, weights=w_, **({**kw, "src_z": z_} if slant else kw))
+            keep, rej = reject_outliers(s_, d_, threshold=outlier_threshold, weights=w_, k_sigma=K_SIGMA, **({**kw, "src_z": z_} if slant else kw))
             f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, weights=w_[keep], **kw)
             # f maps G -> radar; pose_G is radar -> G
             new = f.pose.inverse()
@@ -303,6 +314,16 @@ def calibrate_rig(
         f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, init=pose_G[r].inverse(), weights=w_[keep], **kw2)
         if not joint_info.get("free_points"):
             pose_G[r] = f.pose.inverse()
+        else:  # the joint pose must agree with the radar's own LiDAR-anchored fit (radar-only points can be wrong)
+            jp = pose_G[r].inverse()
+            dx = np.array([float(_wrap(jp.theta - f.pose.theta)), *(jp.t - f.pose.t)])
+            try:
+                d2 = float(dx @ np.linalg.solve(f.cov[:3, :3], dx))
+            except np.linalg.LinAlgError:
+                d2 = np.inf
+            if d2 > 11.34:  # chi-square, 3 dof, 99 %
+                notes.append(f"{r}: the joint refinement moved it {np.sqrt(d2):.1f} sigma from its own LiDAR-anchored fit: that fit kept")
+                pose_G[r] = f.pose.inverse()
         loo = leave_one_out(s_[keep], d_[keep], weights=w_[keep], **({**kw2, "src_z": z_[keep]} if slant else kw2))
         q = pose_G[r].inverse().apply(s_)
         pred = slant_predict(q, z_ - h) if slant else q
@@ -426,14 +447,36 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
 
     free_mask = np.ones(len(x0), bool)
     free_mask[3 * nr:4 * nr] = est_h
-    def resid_free(xf):
-        x = x0.copy()
-        x[free_mask] = xf
-        return resid(x)
+    all_r, all_f, all_m = fo_r, fo_f, fo_m
+    dropped: set = set()
+    for _round in range(4):  # solve; drop radar-only points that do not fit (multipath, clutter seen twice); again
+        live = np.array([f not in dropped for f in all_f], bool)
+        fo_r, fo_f, fo_m = all_r[live], all_f[live], all_m[live]
+        mask = free_mask.copy()
+        for f in dropped:
+            mask[4 * nr + 2 * f:4 * nr + 2 * f + 2] = False
 
-    sol = least_squares(resid_free, x0[free_mask], method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
-    x = x0.copy()
-    x[free_mask] = sol.x
+        def resid_free(xf, mask=mask):
+            x = x0.copy()
+            x[mask] = xf
+            return resid(x)
+
+        sol = least_squares(resid_free, x0[mask], method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
+        x = x0.copy()
+        x[mask] = sol.x
+        P, H, F = unpack(x)
+        anch = np.concatenate([((pred_radar(P, H, k, s_, z_) - d_) * sw).ravel() for k, s_, d_, z_, sw in anchored]) if anchored else np.zeros(0)
+        scale = max(float(np.sqrt(np.mean(anch**2) * 2)) if len(anch) else 0.0, 0.01)
+        bad = set()
+        for k in range(nr):
+            sel = fo_r == k
+            if sel.any():
+                e = np.linalg.norm(pred_radar(P, H, k, F[fo_f[sel]], np.full(sel.sum(), z_nominal)) - fo_m[sel], axis=1)
+                bad |= {int(f) for f, ei in zip(fo_f[sel], e) if ei > 4 * scale}
+        if not bad:
+            break
+        dropped |= bad
+    free_init = [f for i, f in enumerate(free_init) if i not in dropped]
     P, H, F = unpack(x)
     new_pose = {r: Pose2(float(_wrap(P[k, 0])), P[k, 1:].copy()) for k, r in enumerate(names)}
     new_h = {r: (float(H[k]) if (slant or heights[r] is not None) else None) for k, r in enumerate(names)}
@@ -441,7 +484,7 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
         if r not in new_h:
             new_h[r] = heights[r]
     rr = resid(x)
-    return new_pose, new_h, {"enabled": True, "free_points": len(free_init), "n_obs": int(len(rr) // 2), "rms": float(np.sqrt(np.mean(rr.reshape(-1, 2) ** 2) * 2)) if len(rr) else 0.0}
+    return new_pose, new_h, {"enabled": True, "free_points": len(free_init), "free_points_dropped": len(dropped), "n_obs": int(len(rr) // 2), "rms": float(np.sqrt(np.mean(rr.reshape(-1, 2) ** 2) * 2)) if len(rr) else 0.0}
 
 
 def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_gate: float = 4.0, ground_tol: float = 0.05, cluster_tol: float = 0.12,
@@ -469,4 +512,4 @@ def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_ga
                 continue
         out[r], counts[r], rcs_out[r] = xy, np.ones(len(xy), int), rc
     raw = {r: np.asarray(xy, float).reshape(-1, 2) for r, xy in radar_xy.items()}
-    return SceneObs(name, ext.centres, out, ext.ground, raw, rcs_out), ext, counts
+    return SceneObs(name, ext.centres, out, ext.ground, raw, rcs_out, counts), ext, counts
