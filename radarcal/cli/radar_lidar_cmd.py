@@ -36,6 +36,7 @@ def radar_lidar(
     joint: bool = typer.Option(True, "--joint/--no-joint", help="Joint refinement of all radars at once."),
     lidar_method: LidarMethod = typer.Option(LidarMethod.gicp, "--lidar-method", help="LiDAR-LiDAR registration."),
     voxel: float = typer.Option(0.1, "--voxel", help="Finest voxel size (m) of the LiDAR-LiDAR registration."),
+    lidar_tol: str = typer.Option("0.2,0.02", "--lidar-tolerance", help="DEG,M: a LiDAR pose is stored only when 3 sigma of its worst rotation / translation is within these."),
     force: bool = typer.Option(False, "--force", help="Store even what the checks refuse (unobserved LiDAR direction, implausible move)."),
     as_json: bool = JsonOpt,
 ) -> None:
@@ -43,8 +44,13 @@ def radar_lidar(
     from radarcal.extrinsics.radar.session import RadarLidarOptions, calibrate
     from radarcal.io.radar import read_radar_session
 
+    try:
+        tol_deg, tol_m = (float(v) for v in lidar_tol.split(","))
+    except ValueError:
+        raise InputError("--lidar-tolerance", f"expected DEG,M (two numbers), got {lidar_tol!r}") from None
     inp = read_radar_session(session)
-    opts = RadarLidarOptions(model=model.value, gate=gate, outlier=outlier, joint=joint, lidar_method=lidar_method.value, voxel=voxel)
+    opts = RadarLidarOptions(model=model.value, gate=gate, outlier=outlier, joint=joint, lidar_method=lidar_method.value, voxel=voxel,
+                             lidar_tolerance_deg=tol_deg, lidar_tolerance_m=tol_m)
     res = calibrate(inp, opts, progress=progress, log=lambda m: err_console.print(m, style="dim"))
     stored = force or not res.refused
     if stored:

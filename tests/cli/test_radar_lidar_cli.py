@@ -157,7 +157,10 @@ def test_tudelft_example_as_shipped(shared, tmp_path, capsys):
 @pytest.mark.slow
 def test_opencalib_lidar2lidar_as_shipped(shared, tmp_path, capsys):
     root = shared("opencalib_lidar2lidar_0001")
-    assert main(["radar-lidar", str(root), "--bundle", str(tmp_path / "b.yaml"), "--json"]) == 0
+    assert main(["radar-lidar", str(root), "--bundle", str(tmp_path / "a.yaml"), "--json"]) == 1  # the default 2 cm check refuses
+    s = json.loads(capsys.readouterr().out)
+    assert not s["stored"] and any("is not observed" in w for w in s["refusals"]) and not (tmp_path / "a.yaml").exists()
+    assert main(["radar-lidar", str(root), "--bundle", str(tmp_path / "b.yaml"), "--lidar-tolerance", "0.5,0.05", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
     assert s["stored"] and not s["refusals"]
     # docs/radar_lidar.md: fitness at 0.3 m 0.012 -> 0.426 (left), 0.007 -> 0.449 (right), inlier RMSE -> 0.149 m

@@ -142,12 +142,14 @@ def _voxel_first(points: np.ndarray, voxel: float) -> np.ndarray:
 
 
 def _normals(points: np.ndarray, tree, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (smallest covariance eigenvector of the ``k`` nearest neighbours) and planarity in [0, 1]."""
+    """Unit normals (smallest covariance eigenvector of the ``k`` nearest neighbours) and planarity in [0, 1] (0 where
+    the neighbourhood is thick: a corner between two planes gives a normal that neither has)."""
     _, nb = tree.query(points, k=min(k, len(tree.data)))
     Q = tree.data[nb] - tree.data[nb].mean(axis=1, keepdims=True)
     C = np.einsum("nki,nkj->nij", Q, Q)
     ev, vec = np.linalg.eigh(C)
     planar = (ev[:, 1] - ev[:, 0]) / np.maximum(ev[:, 2], 1e-18)
+    planar = np.where(ev[:, 0] < 0.05 * ev[:, 1], planar, 0.0)  # thick neighbourhoods (corners, edges) tilt the normal
     return vec[:, :, 0], planar
 
 
@@ -185,6 +187,7 @@ def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.nd
     tgt_all = np.asarray(target, float).reshape(-1, 3)
     tgt = _voxel_first(tgt_all, voxel / 2)
     tree = cKDTree(tgt)
+    tgt_normals, tgt_planar = _normals(tgt, tree)  # the target's local planes, once
     T = np.asarray(T_init, float).copy()
     pairs_out = []
 
@@ -214,9 +217,10 @@ def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.nd
         ps = geometry.transform_points(T, src)
         dist, nb = tree.query(ps, distance_upper_bound=max_corr)
         ok = np.isfinite(dist)
-        n, planar = _normals(ps[ok], tree)
+        idx = nb[ok]
+        n, planar = tgt_normals[idx], tgt_planar[idx]
         good = planar > 0.3
-        p_ok, q_ok, n = ps[ok][good], tgt[nb[ok][good]], n[good]
+        p_ok, q_ok, n = ps[ok][good], tgt[idx[good]], n[good]
         r = np.sum(n * (p_ok - q_ok), axis=1)
         s_plane = max(1.4826 * float(np.median(np.abs(r))), plane_sigma_floor) if len(r) else s_plane
         w = np.minimum(1.0, 2.0 * s_plane / np.maximum(np.abs(r), 1e-12))  # Huber

@@ -331,9 +331,9 @@ def calibrate(inp, options: RadarLidarOptions | None = None, progress=lambda it,
             s_t, d_t = ref.worst_trans
             s_r, d_r = ref.worst_rot
             if 3 * s_t > o.lidar_tolerance_m:
-                why = f"{n}: translation along {axis_name(d_t, rig.main_lidar)} is not observed (3 sigma {300 * s_t:.1f} cm > {100 * o.lidar_tolerance_m:g} cm; open ground, one wall, no shared reflectors)"
+                why = f"{n}: translation along {axis_name(d_t, rig.main_lidar)} is not observed (3 sigma {300 * s_t:.1f} cm > {100 * o.lidar_tolerance_m:g} cm: add reflectors both LiDARs see, or structure across it)"
             elif 3 * s_r > o.lidar_tolerance_deg:
-                why = f"{n}: rotation about {axis_name(d_r, rig.main_lidar)} is not observed (3 sigma {3 * s_r:.2f} deg > {o.lidar_tolerance_deg:g} deg)"
+                why = f"{n}: rotation about {axis_name(d_r, rig.main_lidar)} is not observed (3 sigma {3 * s_r:.2f} deg > {o.lidar_tolerance_deg:g} deg: add reflectors both LiDARs see, or structure across it)"
             elif reg.fitness < reg.initial_fitness:
                 why = f"{n}: overlap fitness fell from {reg.initial_fitness:.3f} to {reg.fitness:.3f}"
             else:
