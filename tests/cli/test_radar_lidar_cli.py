@@ -114,6 +114,7 @@ def test_bad_sessions_one_line_exit_2_bundle_intact(tmp_path, capsys, break_it, 
     assert bundle.read_bytes() == before
 
 
+@pytest.mark.slow
 def test_unobserved_second_lidar_refused_nothing_stored(tmp_path, capsys):
     from radarcal.synth.radar import feature_spec, generate_radar_session, write_radar_session
 
