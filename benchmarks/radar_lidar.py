@@ -17,7 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from radarcal import geometry
-from radarcal.extrinsics.radar import Pose2, build_scene_obs, calibrate_rig, fit_rigid_2d, procrustes_floor
+from radarcal.extrinsics.radar import (
+    Pose2,
+    build_scene_obs,
+    calibrate_rig,
+    fit_rigid_2d,
+    procrustes_floor,
+)
 from radarcal.synth.radar import RadarRigSpec, RadarSceneSpec, generate_radar_session
 
 # N = 4 reflectors (forward, lateral, apex height) relative to the main LiDAR's ground point
@@ -98,7 +104,11 @@ def slant_bias(height_diff: float = 0.5, model: str = "slant") -> dict:
 
 
 def tudelft(root) -> dict:
-    from radarcal.extrinsics.radar import board_reflector_centres, leave_one_out, slant_predict
+    from radarcal.extrinsics.radar import (
+        board_reflector_centres,
+        leave_one_out,
+        slant_predict,
+    )
     from radarcal.io.radar import read_tudelft_accumulator, read_tudelft_example
 
     circ, rxy = read_tudelft_example(root / "optimization_example_data")
@@ -233,7 +243,9 @@ def feature_benchmark(family: str, seeds, workdir: Path) -> dict:
     radars = {}
     for name in runs[0]["radars"]:
         rs = [r["radars"][name] for r in runs if name in r["radars"]]
-        rms = lambda k: float(np.sqrt(np.mean([x[k] ** 2 for x in rs])))  # noqa: E731
+        def rms(k, rs=rs):
+            return float(np.sqrt(np.mean([x[k] ** 2 for x in rs])))
+
         radars[name] = {"n": len(rs), "rms_deg": rms("deg"), "ideal_rms_deg": rms("ideal_deg"), "rms_m": rms("m"), "ideal_rms_m": rms("ideal_m"),
                         "ratio_deg": rms("deg") / rms("ideal_deg"), "ratio_m": rms("m") / rms("ideal_m")}
     z = np.array([x["z"] for r in runs for x in r["radars"].values()])

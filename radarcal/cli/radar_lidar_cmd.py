@@ -15,6 +15,7 @@ from radarcal.cli.common import (
     err_console,
     progress,
 )
+from radarcal.errors import InputError
 
 
 class Model(str, Enum):

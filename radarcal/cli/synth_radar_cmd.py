@@ -34,7 +34,15 @@ def synth_radar(
     as_json: bool = JsonOpt,
 ) -> None:
     """Vehicle with a front LiDAR, left/middle/right 2D radars and corner reflectors on tripods."""
-    from radarcal.synth.radar import RadarRigSpec, RadarSceneSpec, _default_extra_lidars, _default_radars, feature_spec, generate_radar_session, write_radar_session
+    from radarcal.synth.radar import (
+        RadarRigSpec,
+        RadarSceneSpec,
+        _default_extra_lidars,
+        _default_radars,
+        feature_spec,
+        generate_radar_session,
+        write_radar_session,
+    )
 
     try:
         hs = [float(v) for v in heights.split(",")]

@@ -116,7 +116,11 @@ def test_bad_sessions_one_line_exit_2_bundle_intact(tmp_path, capsys, break_it, 
 
 @pytest.mark.slow
 def test_unobserved_second_lidar_refused_nothing_stored(tmp_path, capsys):
-    from radarcal.synth.radar import feature_spec, generate_radar_session, write_radar_session
+    from radarcal.synth.radar import (
+        feature_spec,
+        generate_radar_session,
+        write_radar_session,
+    )
 
     spec = feature_spec(7, "check")
     spec.n_scenes = 2

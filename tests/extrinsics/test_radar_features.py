@@ -11,7 +11,12 @@ from radarcal.extrinsics.radar import aggregate_frames, extract_reflectors
 from radarcal.extrinsics.radar.lidar_lidar import axis_name, refine_with_reflectors
 from radarcal.extrinsics.radar.reflectors import fit_trihedral, linear_fraction
 from radarcal.extrinsics.radar.rig import rcs_weights
-from radarcal.synth.radar import RadarSceneSpec, generate_radar_session, reflector_offset, trihedral_points
+from radarcal.synth.radar import (
+    RadarSceneSpec,
+    generate_radar_session,
+    reflector_offset,
+    trihedral_points,
+)
 
 
 @pytest.mark.parametrize("sampling", ["grid", "random"])

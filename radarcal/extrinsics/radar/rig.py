@@ -416,7 +416,7 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
     x0 = np.concatenate([np.concatenate([pose_G[r].as_array() for r in names]), np.array([heights[r] or 0.0 for r in names]), np.array(free_init).ravel()])
     anchored = []
     for k, r in enumerate(names):
-        s_, d_, z_, info, keep, rej, kw, w_, _ = keepinfo[r]
+        s_, d_, z_, _info, keep, _rej, _kw, w_, _ = keepinfo[r]
         anchored.append((k, s_[keep], d_[keep], z_[keep], np.sqrt(w_[keep])[:, None]))
     fo_r = np.array([o[0] for o in free_obs], int)
     fo_f = np.array([o[1] for o in free_obs], int)
