@@ -311,6 +311,7 @@ class SessionScene:
     detections: RadarDetections
     notes: list = field(default_factory=list)
     centres: dict = field(default_factory=dict)  # lidar -> (K,3) reflector centres in that LiDAR's frame (m)
+    boards: dict = field(default_factory=dict)  # lidar -> ((M,K,3) board circle centres, reflector offset behind the board (m))
 
     def cloud(self, lidar: str):
         """The :class:`radarcal.io.clouds.Cloud` of ``lidar`` in this scene (``InputError`` when missing or empty)."""
@@ -365,14 +366,11 @@ def read_tudelft_session(folder: Path, board_offset: float = 0.105) -> RadarSess
     """The TU Delft example folder as shipped (``lidar.csv`` 3 x 4M board circle centres, ``radar.csv`` 2 x M): one
     LiDAR ``lidar``, one radar ``radar`` (height unknown: estimated), reflector = board centre moved 0.105 m behind the
     board; all M placements in one scene (each board is one reflector)."""
-    from radarcal.extrinsics.radar.reflectors import board_reflector_centres
-
     circles, rxy = read_tudelft_example(folder)
-    centres = board_reflector_centres(circles, board_offset)
     rig = RigConfig("lidar", ["lidar"], ["radar"], {"radar": None}, {}, "radar", path=str(folder / "lidar.csv"))
     det = RadarDetections(np.full(len(rxy), "radar"), rxy, np.full(len(rxy), np.nan), np.full(len(rxy), np.nan), str(folder / "radar.csv"))
     note = f"TU Delft example: {len(rxy)} board placements, reflector {board_offset:g} m behind each board's circle centres"
-    return RadarSessionInput(folder, rig, [SessionScene("boards", {}, det, [note], {"lidar": centres})], "tudelft")
+    return RadarSessionInput(folder, rig, [SessionScene("boards", {}, det, [note], boards={"lidar": (circles, board_offset)})], "tudelft")
 
 
 def read_opencalib_lidar2lidar(folder: Path) -> RadarSessionInput:

@@ -173,3 +173,30 @@ def test_opencalib_lidar2lidar_as_shipped(shared, tmp_path, capsys):
         d = s["lidars"][n]
         assert d["initial_fitness"] == pytest.approx(f0, abs=0.002) and d["fitness"] == pytest.approx(f1, abs=0.01)
         assert d["inlier_rmse_m"] == pytest.approx(0.149, abs=0.005)
+
+
+def test_reflector_centres_session_tudelft_style(tmp_path, capsys):
+    """scenes/<k>/reflectors.csv instead of a cloud (a level main LiDAR; radar heights unknown: estimated)."""
+    import yaml
+
+    from radarcal.synth.radar import RadarRigSpec, RadarSceneSpec, generate_radar_session, write_radar_session
+
+    spec = RadarSceneSpec(rig=RadarRigSpec(main_lidar_pose=(2.2, 0.0, 1.35, 0.0, 0.0, 0.8)), n_scenes=4, radar_sigma=0.0, lidar_noise=0.0, seed=9)
+    ses = generate_radar_session(spec)
+    root = write_radar_session(ses, tmp_path / "c")
+    rig = yaml.safe_load((root / "rig.yaml").read_text())
+    for r in rig["radars"].values():
+        r.pop("mount_height_m")
+    (root / "rig.yaml").write_text(yaml.safe_dump(rig))
+    for sc in ses.truth["scenes"]:
+        d = root / "scenes" / sc["name"]
+        (d / "lidar_front.pcd").unlink()
+        (d / "reflectors.csv").write_text("lidar,x,y,z\n" + "".join(f"lidar_front,{x},{y},{z}\n" for x, y, z in sc["apex_main"]))
+    capsys.readouterr()
+    assert main(["radar-lidar", str(root), "--bundle", str(tmp_path / "b.yaml"), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert sum("estimated from the slant model" in n for n in s["notes"]) == 3
+    for r, d in s["radars"].items():
+        T, T_true = np.array(d["T_main_radar"]), np.array(ses.truth["T_main_sensor"][r])
+        yaw = np.degrees(np.arctan2((T_true[:3, :3].T @ T[:3, :3])[1, 0], (T_true[:3, :3].T @ T[:3, :3])[0, 0]))
+        assert abs(yaw) < 1e-4 and np.linalg.norm(T[:2, 3] - T_true[:2, 3]) < 1e-4, (r, yaw, T[:3, 3], T_true[:3, 3])

@@ -15,7 +15,7 @@ import numpy as np
 
 from radarcal import geometry
 from radarcal.errors import InputError
-from radarcal.extrinsics.radar.reflectors import extract_reflectors
+from radarcal.extrinsics.radar.reflectors import board_reflector_centres, extract_reflectors
 from radarcal.extrinsics.radar.rig import (
     RigCalibration,
     SceneObs,
@@ -241,8 +241,12 @@ def calibrate(inp, options: RadarLidarOptions | None = None, progress=lambda it,
         det = sc.detections
         xy = {r: det.of(r) for r in rig.radars}
         rcs = {r: det.rcs[det.radar == r] for r in rig.radars}
-        if rig.main_lidar in sc.centres:
-            c = np.asarray(sc.centres[rig.main_lidar], float).reshape(-1, 3)  # reflector centres given: detections as they are
+        if rig.main_lidar in sc.centres or rig.main_lidar in sc.boards:
+            if rig.main_lidar in sc.boards:  # TU Delft boards: reflector behind the mean of each board's circle centres
+                circles, board_offset = sc.boards[rig.main_lidar]
+                c = board_reflector_centres(circles, board_offset)
+            else:  # reflector centres given: detections as they are
+                c = np.asarray(sc.centres[rig.main_lidar], float).reshape(-1, 3)
             obs = SceneObs(sc.name, c, dict(xy), None, xy, rcs)
             counts = {r: np.ones(len(v), int) for r, v in xy.items()}
             extraction[sc.name] = {"methods": ["given"] * len(c), "rejected": []}
