@@ -15,7 +15,10 @@ import numpy as np
 
 from radarcal import geometry
 from radarcal.errors import InputError
-from radarcal.extrinsics.radar.reflectors import board_reflector_centres, extract_reflectors
+from radarcal.extrinsics.radar.reflectors import (
+    board_reflector_centres,
+    extract_reflectors,
+)
 from radarcal.extrinsics.radar.rig import (
     RigCalibration,
     SceneObs,
@@ -299,7 +302,15 @@ def calibrate(inp, options: RadarLidarOptions | None = None, progress=lambda it,
                 deg, m = geometry.pose_error(res.T_lidar_radar, T0)
                 if deg > o.max_move_deg or m > o.max_move_m:
                     refusals.append(f"{r}: moved {deg:.1f} deg / {m:.2f} m from its initial_T_main (limit {o.max_move_deg:g} deg / {o.max_move_m:g} m): implausible")
-    # --- LiDAR <-> LiDAR ----------------------------------------------------------------------------------------
+    lidars = _register_lidars(inp, o, lidar_clouds, main_centres, refusals, log)
+    labels = _label_detections(cal, scenes, rig.radars) if cal is not None else {}
+    return RadarLidarResult(rig, cal, lidars, scenes, frames, notes, refusals, labels, o, extraction)
+
+
+def _register_lidars(inp, o: RadarLidarOptions, lidar_clouds: dict, main_centres: list, refusals: list, log) -> dict:
+    """Every other LiDAR to the main one: GICP, then the reflector-constrained refinement; the checks append to
+    ``refusals``. Returns name -> {registration, refinement, T, refused, method}."""
+    rig = inp.rig
     lidars = {}
     others = [n for n in rig.lidars if n != rig.main_lidar and lidar_clouds[n]]
     if others:
@@ -347,5 +358,4 @@ def calibrate(inp, options: RadarLidarOptions | None = None, progress=lambda it,
             if why:
                 refusals.append(why)
             lidars[n] = {"registration": reg, "refinement": ref, "T": T, "refused": why, "method": method}
-    labels = _label_detections(cal, scenes, rig.radars) if cal is not None else {}
-    return RadarLidarResult(rig, cal, lidars, scenes, frames, notes, refusals, labels, o, extraction)
+    return lidars
