@@ -221,9 +221,13 @@ class FieldModel:
         (≈ 1 s) and cached per (voxel, grow). For a mesh-backed field the source is the filter mesh when given."""
         key = ("occ", float(voxel), float(grow))
         if key not in self._cache:
-            src = self.filter_mesh if self.filter_mesh is not None else self.mesh
-            raster = self.height_raster() if src is self.mesh else HeightRaster.from_mesh(src, 0.02)
-            self._cache[key] = OccupancyGrid.from_points(self.surface_samples(min(voxel / 2, 0.05)), voxel, grow, solid_below=raster)
+            if self.mesh is None:
+                top = self.surface_z
+            elif self.filter_mesh is None:
+                top = self.height_raster().lookup
+            else:
+                top = HeightRaster.from_mesh(self.filter_mesh, 0.02).lookup
+            self._cache[key] = OccupancyGrid.from_points(self.surface_samples(min(voxel / 2, 0.05)), voxel, grow, solid_below=top)
         return self._cache[key]
 
     def height_raster(self, res: float = 0.02) -> "HeightRaster":
@@ -274,9 +278,9 @@ class OccupancyGrid:
     grow: float = 0.0
 
     @classmethod
-    def from_points(cls, p: np.ndarray, voxel: float, grow: float, solid_below: "HeightRaster | None" = None) -> "OccupancyGrid":
-        """Voxels holding a surface point ``p`` (M,3), plus (``solid_below``) every voxel under the raster's top
-        surface (the inside of raised areas and structures), then grown by ``grow``."""
+    def from_points(cls, p: np.ndarray, voxel: float, grow: float, solid_below=None) -> "OccupancyGrid":
+        """Voxels holding a surface point ``p`` (M,3), plus (``solid_below``: a callable (K,2) -> (K,) top height)
+        every voxel under that top surface (the inside of raised areas and structures), then grown by ``grow``."""
         p = np.asarray(p, float).reshape(-1, 3)
         pad = grow + 2 * voxel
         lo = p.min(0) - pad
@@ -290,11 +294,11 @@ class OccupancyGrid:
             gx = lo[0] + (np.arange(shape[0]) + 0.5) * voxel
             gy = lo[1] + (np.arange(shape[1]) + 0.5) * voxel
             xx, yy = np.meshgrid(gx, gy, indexing="ij")
-            off = np.linspace(-0.45, 0.45, 4) * voxel
+            off = np.linspace(-0.45, 0.45, 3) * voxel
             hmin = np.full(xx.shape, np.inf)
             for ox in off:
                 for oy in off:
-                    hmin = np.minimum(hmin, solid_below.lookup(np.column_stack([(xx + ox).ravel(), (yy + oy).ravel()])).reshape(xx.shape))
+                    hmin = np.minimum(hmin, solid_below(np.column_stack([(xx + ox).ravel(), (yy + oy).ravel()])).reshape(xx.shape))
             ztop = lo[2] + (np.arange(shape[2]) + 1.0) * voxel
             inside_col = (p[:, 0].min() <= xx) & (xx <= p[:, 0].max()) & (p[:, 1].min() <= yy) & (yy <= p[:, 1].max())
             occ |= (ztop[None, None, :] <= hmin[..., None]) & (ztop[None, None, :] > p[:, 2].min() - voxel) & inside_col[..., None]
