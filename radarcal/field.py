@@ -9,7 +9,10 @@ that solid (a low ray can hit a highland's side wall).
 Optional ``structures`` (bases, outposts as oriented boxes) are for renderers and the scene generator; they are
 not part of the surface that ``surface_z`` / ``intersect_rays`` describe.
 
-The built-in ``rmuc2024`` model and every coordinate in it are documented and justified in ``docs/field.md``.
+The built-in ``rmuc_schematic`` (old name ``rmuc2024``, still accepted) is a *schematic* RMUC-like field — it is not
+the 2024 field: against a real team's 2024 mesh only 46 % of a 0.5 m grid lies within 5 cm of its height
+(``docs/field.md``). Load the season's mesh (``--field FILE.stl`` or a field YAML with ``mesh:``) for the real
+geometry; the mesh-backed model answers every query below through the same interface.
 """
 
 from __future__ import annotations
@@ -373,10 +376,35 @@ class HeightRaster:
         out[ok] = self.z[iy[ok].astype(np.int64), ix[ok].astype(np.int64)]
         return out
 
-    def march(self, o: np.ndarray, d: np.ndarray, t_min: float = 1e-9, t_max: float = 200.0, chunk: int = 2_000_000) -> np.ndarray:
-        """First ``t`` (N,) where ``o + t d`` goes below the raster's surface (NaN: none): steps of half a cell,
-        then 10 bisections. Rays that start under the surface report the first exit-then-entry (as the polygon
-        model does for ``t_min``)."""
+    def _coarse(self, factor: int) -> np.ndarray:
+        """Max height over blocks of ``factor`` cells, dilated by one block (a conservative bound for marching)."""
+        key = f"_coarse{factor}"
+        if key not in self.__dict__:
+            from scipy.ndimage import maximum_filter
+
+            ny, nx = self.z.shape
+            py, px = (-ny) % factor, (-nx) % factor
+            z = np.pad(self.z, ((0, py), (0, px)), mode="edge")
+            z = z.reshape(z.shape[0] // factor, factor, z.shape[1] // factor, factor).max(axis=(1, 3))
+            zc = maximum_filter(np.pad(z, 1, mode="constant", constant_values=0.0), size=3, mode="nearest")
+            self.__dict__[key] = zc  # (ny/f + 2, nx/f + 2), padded by one block of ground all round
+        return self.__dict__[key]
+
+    def _coarse_lookup(self, xy: np.ndarray, factor: int) -> np.ndarray:
+        zc = self._coarse(factor)
+        ix = np.floor((xy[:, 0] - self.x0) / (self.res * factor)).astype(np.int64) + 1
+        iy = np.floor((xy[:, 1] - self.y0) / (self.res * factor)).astype(np.int64) + 1
+        ok = (ix >= 0) & (ix < zc.shape[1]) & (iy >= 0) & (iy < zc.shape[0])
+        out = np.zeros(len(xy))
+        out[ok] = zc[iy[ok], ix[ok]]
+        return out
+
+    def march(self, o: np.ndarray, d: np.ndarray, t_min: float = 1e-9, t_max: float = 200.0, factor: int = 8, window: int = 3) -> np.ndarray:
+        """First ``t`` (N,) where ``o + t d`` goes below the raster's surface (NaN: none).
+
+        Two levels: steps of half a block over the block-max raster (``factor`` cells, dilated: a segment can only
+        dip below the surface where its end lies under that bound), then half-cell steps over ``window`` blocks
+        from each candidate, then 10 bisections. Vectorised over rays; a few iterations per false candidate."""
         o = np.asarray(o, float).reshape(-1, 3)
         d = np.asarray(d, float).reshape(-1, 3)
         n = len(o)
@@ -387,41 +415,53 @@ class HeightRaster:
         zmax = float(self.z.max()) if self.z.size else 0.0
         zmin = min(0.0, float(self.z.min()) if self.z.size else 0.0) - 1e-6
         with np.errstate(divide="ignore", invalid="ignore"):
-            # parameter range where the ray is between zmin and zmax
             t_lo = np.where(d[:, 2] < 0, (o[:, 2] - zmax) / -d[:, 2], np.where(o[:, 2] <= zmax, 0.0, np.inf))
             t_hi = np.where(d[:, 2] < 0, (o[:, 2] - zmin) / -d[:, 2], np.where(o[:, 2] <= zmax, t_max / np.maximum(dn, 1e-12), -np.inf))
         t_lo = np.maximum(np.nan_to_num(t_lo, nan=np.inf), t_min)
         t_hi = np.minimum(np.nan_to_num(t_hi, nan=-np.inf), t_max / np.maximum(dn, 1e-12))
         live = np.nonzero((t_hi >= t_lo) & (dn > 0))[0]
-        if len(live) == 0:
-            return out
-        step = 0.5 * self.res / dn[live]
-        nstep = np.ceil((t_hi[live] - t_lo[live]) / step).astype(np.int64) + 1
-        S = int(nstep.max())
-        per = max(1, chunk // max(S, 1))
-        for a in range(0, len(live), per):
-            r = live[a: a + per]
-            st = step[a: a + per]
-            k = np.arange(S)
-            t = t_lo[r, None] + k[None] * st[:, None]
-            t = np.minimum(t, t_hi[r, None])
-            p = o[r, None, :] + t[..., None] * d[r, None, :]
-            h = self.lookup(p[..., :2].reshape(-1, 2)).reshape(t.shape)
-            below = (p[..., 2] <= h) & (k[None] > 0)
-            first = np.argmax(below, axis=1)
-            hit = below[np.arange(len(r)), first]
-            if not np.any(hit):
-                continue
-            r, first, st = r[hit], first[hit], st[hit]
-            ta = t_lo[r] + (first - 1) * st
-            tb = np.minimum(t_lo[r] + first * st, t_hi[r])
-            for _ in range(10):
-                tm = 0.5 * (ta + tb)
-                pm = o[r] + tm[:, None] * d[r]
-                under = pm[:, 2] <= self.lookup(pm[:, :2])
-                tb = np.where(under, tm, tb)
-                ta = np.where(under, ta, tm)
-            out[r] = tb
+        fine = 0.5 * self.res / np.where(dn > 0, dn, 1.0)
+        coarse = fine * factor
+        cur = t_lo.copy()  # next parameter to examine, per ray
+        kc = np.arange(1, 65)
+        kf = np.arange(0, factor * window + 1)
+        it = 0
+        while len(live):
+            it += 1
+            # coarse: first block step whose end lies under the bound (64 steps per pass)
+            t = np.minimum(cur[live, None] + kc[None] * coarse[live, None], t_hi[live, None])
+            p = o[live, None] + t[..., None] * d[live, None]
+            cand = p[..., 2] <= self._coarse_lookup(p[..., :2].reshape(-1, 2), factor).reshape(t.shape)
+            any_c = cand.any(axis=1)
+            first = np.argmax(cand, axis=1)
+            done = ~any_c & (t[:, -1] >= t_hi[live])
+            cur[live[~any_c]] = t[~any_c, -1]
+            live_c = live[any_c]
+            start = np.maximum(t[any_c, first[any_c]] - coarse[live_c], cur[live_c])
+            # fine: half-cell steps over `window` blocks from the candidate segment's start
+            tf = np.minimum(start[:, None] + kf[None] * fine[live_c, None], t_hi[live_c, None])
+            pf = o[live_c, None] + tf[..., None] * d[live_c, None]
+            below = (pf[..., 2] <= self.lookup(pf[..., :2].reshape(-1, 2)).reshape(tf.shape)) & (tf > t_lo[live_c, None] + 0.5 * fine[live_c, None])
+            hit = below.any(axis=1)
+            fi = np.argmax(below, axis=1)
+            r = live_c[hit]
+            if len(r):
+                ta = tf[hit, fi[hit] - 1]
+                tb = tf[hit, fi[hit]]
+                for _ in range(10):
+                    tm = 0.5 * (ta + tb)
+                    pm = o[r] + tm[:, None] * d[r]
+                    under = pm[:, 2] <= self.lookup(pm[:, :2])
+                    tb = np.where(under, tm, tb)
+                    ta = np.where(under, ta, tm)
+                out[r] = tb
+            cur[live_c[~hit]] = tf[~hit, -1]
+            finished = np.zeros(n, bool)
+            finished[live[done]] = True
+            finished[r] = True
+            live = live[~finished[live] & (cur[live] < t_hi[live])]
+            if it > 10_000:  # cannot happen (every pass advances each ray by at least one block)
+                break
         return out
 
 
@@ -560,9 +600,13 @@ def _rmuc2024() -> FieldModel:
         {"name": "blue_trapezoid_highland", "polygon": [_mirror(p) for p in red_trapezoid], "z": H_TRAP},
     ]
     base_h, outpost_h = 1.1, 1.3
+    # outposts: NOTE the referee frame has them at the low-y side of the red half (a team's 2024 mesh, whose
+    # coordinates went to 0x0305 unmirrored, puts them at (11.18, 2.42) and (16.82, 12.58); docs/field.md "Frame").
+    # This schematic keeps them mirrored in y, where its generated scenes and their tests were built.
+    OUT = (11.0, 12.5)
     red = {
         "red_base": (1.5, 7.5, base_h),
-        "red_outpost": (11.0, 12.5, outpost_h),
+        "red_outpost": (OUT[0], OUT[1], outpost_h),
         "red_highland_corner_a": (5.5, 3.5, H_TRAP),
         "red_highland_corner_b": (9.5, 3.5, H_TRAP),
         "red_ramp_foot_south": (10.4, 6.8, 0.0),
@@ -578,28 +622,28 @@ def _rmuc2024() -> FieldModel:
     structures = [
         {"name": "red_base", "center": [1.5, 7.5, 0.0], "size": [1.4, 1.4, base_h], "yaw": 0.0, "color": "red"},
         {"name": "blue_base", "center": [L - 1.5, W - 7.5, 0.0], "size": [1.4, 1.4, base_h], "yaw": 0.0, "color": "blue"},
-        {"name": "red_outpost", "center": [11.0, 12.5, 0.0], "size": [0.6, 0.6, outpost_h], "yaw": 0.0, "color": "red"},
-        {"name": "blue_outpost", "center": [L - 11.0, W - 12.5, 0.0], "size": [0.6, 0.6, outpost_h], "yaw": 0.0, "color": "blue"},
+        {"name": "red_outpost", "center": [OUT[0], OUT[1], 0.0], "size": [0.6, 0.6, outpost_h], "yaw": 0.0, "color": "red"},
+        {"name": "blue_outpost", "center": [L - OUT[0], W - OUT[1], 0.0], "size": [0.6, 0.6, outpost_h], "yaw": 0.0, "color": "blue"},
     ]
     return FieldModel(
-        name="rmuc2024",
+        name="rmuc_schematic",
         size=(L, W),
         landmarks=landmarks,
         outline=[(0.0, 0.0), (L, 0.0), (L, W), (0.0, W)],
         areas=areas,
         structures=structures,
-        description="RoboMaster University Championship-like field, 28 m x 15 m, centrally symmetric; see docs/field.md "
-        "for which coordinates follow the rule manual's figures and which are approximations.",
+        description="Schematic RoboMaster University Championship-like field, 28 m x 15 m, centrally symmetric; NOT the "
+        "2024 field (46 % of it within 5 cm of a real 2024 mesh's height, docs/field.md): load the season's mesh for that.",
     )
 
 
-_BUILTIN = {"rmuc2024": _rmuc2024}
+_BUILTIN = {"rmuc_schematic": _rmuc2024, "rmuc2024": _rmuc2024}  # rmuc2024: the old name, kept for old commands
 BUILTIN_FIELDS: tuple[str, ...] = tuple(_BUILTIN)
 
 
 def builtin_field(name: str) -> FieldModel:
     if name not in _BUILTIN:
-        raise InputError(name, f"unknown built-in field (built-in: {', '.join(BUILTIN_FIELDS)})")
+        raise InputError(name, f"unknown built-in field (built-in: rmuc2024 = rmuc_schematic, a schematic; or a mesh file / field YAML)")
     return _BUILTIN[name]()
 
 
@@ -692,7 +736,7 @@ def load_field(name_or_path: str | os.PathLike, units: str = "auto") -> FieldMod
         return builtin_field(s)
     path = Path(s)
     if not path.exists():
-        raise InputError(path, f"no such field file and not a built-in field (built-in: {', '.join(BUILTIN_FIELDS)})")
+        raise InputError(path, "no such field file and not a built-in field (built-in: rmuc2024 = rmuc_schematic, a schematic)")
     if not path.is_file():
         raise InputError(path, "field model must be a YAML or JSON file or a mesh (STL/PLY/OBJ)")
     if path.suffix.lower() in MESH_SUFFIXES:
