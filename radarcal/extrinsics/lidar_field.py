@@ -277,7 +277,8 @@ def register_lidar_field(points_lidar: np.ndarray, target: MeshTarget, T_init: n
     for T0 in starts:
         T1 = _gn(sub, T0, target, opt.gates_m, opt.iterations_per_gate)
         cands.append((T1, *_score(sub, T1, target, opt.inlier_m)))
-    if opt.restarts:
+    hopeless = max(c[1] for c in cands) < min(opt.min_inliers, 0.02 * len(sub)) or max(c[2] for c in cands) < 0.05 * len(sub)
+    if opt.restarts and not hopeless:  # (a cloud the mesh cannot explain at all is not worth restarting)
         small = sub[: opt.restart_points]
         coarse = tuple(g for g in opt.gates_m if g >= 0.1)[1:]
         for rnd in range(3):  # restart around the best; again while a restart finds a better, distinct pose
