@@ -171,6 +171,9 @@ def _sigmas(points: np.ndarray, T: np.ndarray, target: MeshTarget, opt: LidarFie
     d = np.linalg.norm(p - q, axis=1)
     gate = opt.gates_m[-1]
     m = d < gate
+    if m.sum() < 3 * opt.jackknife_sectors:  # nothing to estimate from (the verdict will say "failed")
+        big = np.eye(6) * 1e6
+        return big, big, np.zeros((6, 6)), float("nan"), int(m.sum())
     r = np.sum((p[m] - q[m]) * n[m], axis=1)
     s = gate / 2
     w = (s * s / (s * s + r * r)) ** 2
