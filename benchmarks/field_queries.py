@@ -67,7 +67,7 @@ def rows(fm, rng, reps: int = 20) -> list[tuple[str, str, float]]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reps", type=int, default=20)
-    a = ap.parse_args(argv or [])
+    a = ap.parse_args(argv)
     rng = np.random.default_rng(0)
     fields = [("rmuc2024 (polygons)", load_field("rmuc2024"))]
     if MESH.is_file():
