@@ -165,3 +165,31 @@ def lidar_field(
     emit(summary, as_json, human)
     if not stored:
         raise typer.Exit(1)
+
+
+def resolve_field_pose(b, camera: str, lidar: str | None, mode: str = "auto") -> tuple[np.ndarray | None, str]:
+    """The camera's field pose for ``radarcal run --field-pose``: ``pnp`` (the stored T_cam_field), ``chain``
+    (T_field_lidar from lidar-field · T_lidar_cam), ``auto`` (the chain when lidar-field converged, else pnp).
+    Returns (T_field_cam or None to leave the bundle's own path, a description)."""
+    from radarcal import geometry
+
+    if mode not in ("auto", "chain", "pnp"):
+        raise InputError("--field-pose", f"expected auto, chain or pnp, got {mode!r}")
+    pnp = _direct(b, camera, "field")
+    chain = None
+    if lidar is not None:
+        fl = b.transforms.get(f"T_field_{lidar}")
+        cl = _direct(b, camera, lidar)
+        if fl is not None and cl is not None:
+            chain = (np.asarray(fl.T, float) @ geometry.invert_T(cl[0]), fl.residual.get("verdict", ""))
+    if mode == "pnp":
+        if pnp is None:
+            raise InputError("--field-pose", f"pnp: no T_{camera}_field (field-pnp) in the bundle")
+        return geometry.invert_T(pnp[0]), f"field-pnp T_{camera}_field"
+    if mode == "chain":
+        if chain is None:
+            raise InputError("--field-pose", f"chain: needs T_field_{lidar} (lidar-field) and T_{camera}_{lidar} in the bundle")
+        return chain[0], f"chain T_field_{lidar} · T_{lidar}_{camera}"
+    if chain is not None and (chain[1] == "converged" or pnp is None):
+        return chain[0], f"chain T_field_{lidar} · T_{lidar}_{camera} (auto)"
+    return (geometry.invert_T(pnp[0]), f"field-pnp T_{camera}_field (auto)") if pnp is not None else (None, "the bundle's transform chain")

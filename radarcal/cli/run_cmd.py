@@ -35,6 +35,7 @@ def run(
     max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
+    field_pose: str = typer.Option("auto", "--field-pose", help="Camera field pose: chain (lidar-field T_field_lidar · T_lidar_cam), pnp (field-pnp), auto (chain when lidar-field converged, else pnp)."),
     as_json: bool = JsonOpt,
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
@@ -67,6 +68,11 @@ def run(
         if len(sxy) != 2:
             raise InputError("--sentry-xy", f"expected X,Y in metres, got {sentry_xy!r}")
     cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy)
+    from radarcal.cli.lidar_field_cmd import resolve_field_pose
+
+    T_fc, _pose_src = resolve_field_pose(b, cam_name, lidar_name, field_pose)
+    if T_fc is not None:  # in memory only (run never saves the bundle): the Pipeline reads bundle.T("field", cam)
+        b.set_transform("field", cam_name, T_fc, method=f"run --field-pose {field_pose}: {_pose_src}")
     pipe = Pipeline(b, cam_name, lidar_name if has_clouds else None, cfg)
 
     if detector is not None:

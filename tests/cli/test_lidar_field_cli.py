@@ -70,3 +70,27 @@ def test_bad_input_one_line_nothing_stored(scene, tmp_path, capsys, case):
     assert rc == 2 and err.startswith("error: ") and "\n" not in err
     assert not b.exists()
     assert {"empty": "empty point cloud", "not_a_mesh": "not a mesh", "no_field": "registration failed", "no_start": "no start pose"}[case] in err
+
+
+def test_run_field_pose_chain_pnp_auto():
+    from radarcal.bundle import Bundle
+    from radarcal.cli.lidar_field_cmd import resolve_field_pose
+    from radarcal.errors import InputError
+
+    T_field_cam = geometry.T_from_xyz_rpy_deg(-0.6, 11.5, 2.5, 0, 16, -20)
+    T_cam_lidar = geometry.T_from_xyz_rpy_deg(0.04, 0.09, -0.03, 1, 2, 3)
+    T_chain_cam = geometry.T_from_xyz_rpy_deg(-0.58, 11.52, 2.49, 0.1, 16.1, -20.1)  # what lidar-field found
+    b = Bundle()
+    b.set_transform("cam0", "field", geometry.invert_T(T_field_cam))
+    b.set_transform("cam0", "lidar0", T_cam_lidar)
+    with pytest.raises(InputError, match="chain: needs T_field_lidar0"):
+        resolve_field_pose(b, "cam0", "lidar0", "chain")
+    T, src = resolve_field_pose(b, "cam0", "lidar0", "auto")
+    np.testing.assert_allclose(T, T_field_cam) and "field-pnp" in src
+    b.set_transform("field", "lidar0", T_chain_cam @ T_cam_lidar, residual={"verdict": "converged"})
+    T, src = resolve_field_pose(b, "cam0", "lidar0", "auto")
+    np.testing.assert_allclose(T, T_chain_cam, atol=1e-12)
+    assert "chain" in src
+    np.testing.assert_allclose(resolve_field_pose(b, "cam0", "lidar0", "pnp")[0], T_field_cam, atol=1e-12)
+    b.transforms["T_field_lidar0"].residual["verdict"] = "degenerate"
+    assert "field-pnp" in resolve_field_pose(b, "cam0", "lidar0", "auto")[1]
