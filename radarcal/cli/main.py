@@ -14,6 +14,7 @@ from radarcal.cli import (
     field_pnp_cmd,
     intrinsics_cmd,
     lidar_camera_cmd,
+    lidar_field_cmd,
     radar_lidar_cmd,
     report_cmd,
     run_cmd,
@@ -39,6 +40,7 @@ app.add_typer(bundle_cmd.app, name="bundle")
 app.command("intrinsics")(intrinsics_cmd.intrinsics)
 app.command("lidar-camera")(lidar_camera_cmd.lidar_camera)
 app.command("field-pnp")(field_pnp_cmd.field_pnp)
+app.command("lidar-field")(lidar_field_cmd.lidar_field)
 app.command("radar-lidar")(radar_lidar_cmd.radar_lidar)
 app.command("run")(run_cmd.run)
 app.command("hero-offset")(run_cmd.hero_offset)

@@ -50,6 +50,7 @@ def run(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
     ui: str = typer.Option(None, "--ui", help="Serve the live operator console on [HOST:]PORT (default host 127.0.0.1; docs/console.md)."),
     speed: float = typer.Option(None, "--speed", help="Replay at this multiple of real time (default: 1 with --ui, else as fast as possible; 0 = unpaced)."),
+    field_pose: str = typer.Option("auto", "--field-pose", help="Camera field pose: chain (lidar-field T_field_lidar · T_lidar_cam), pnp (field-pnp), auto (chain when lidar-field converged, else pnp)."),
     as_json: JsonOpt = False,
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
@@ -104,6 +105,11 @@ def run(
     warnings = run_warnings(has_clouds, no_lidar, replay is not None) + [f"bundle {w}" for w in forced_entries(b)]
     for w in warnings:
         err_console.print(f"warning: {w}", style="yellow")
+    from radarcal.cli.lidar_field_cmd import resolve_field_pose
+
+    T_fc, _pose_src = resolve_field_pose(b, cam_name, lidar_name, field_pose)
+    if T_fc is not None:  # in memory only (run never saves the bundle): the Pipeline reads bundle.T("field", cam)
+        b.set_transform("field", cam_name, T_fc, method=f"run --field-pose {field_pose}: {_pose_src}")
     pipe = Pipeline(b, cam_name, lidar_name if has_clouds else None, cfg)
 
     if detector is None and (armour is not None or number is not None):

@@ -26,7 +26,7 @@ def synth_match(
     calib_rot: float = typer.Option(0.3, "--calib-rot-deg", help="Rotation error of the bundle's T_cam_lidar (deg)."),
     calib_trans: float = typer.Option(0.02, "--calib-trans-m", help="Translation error of the bundle's T_cam_lidar (m)."),
     pnp_px: float = typer.Option(1.5, "--pnp-px", help="Click noise (px) of the four-point field PnP."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Write a realistic match replay (clouds/, detections.jsonl, truth.jsonl, calib.yaml) — see docs/runtime.md."""
     from radarcal.field import load_field
@@ -36,6 +36,9 @@ def synth_match(
         raise InputError("--scenario", f"expected random or occlusion, got {scenario!r}")
     if frames < 1 or not 0 <= robots <= 12 or people < 0 or lidar_points < 100:
         raise InputError("radarcal synth match", "--frames >= 1, --robots 0..12, --people >= 0, --lidar-points >= 100")
+    from radarcal.cli.outputs import check_output
+
+    check_output(out, what="replay folder", folder=True)
     fm = load_field(field)
     cfg = MatchConfig(frames=frames, seed=seed, robots=robots, scenario=scenario, aerial=not no_aerial, people=people, lidar_points=lidar_points,
                       calib_rot_deg=calib_rot, calib_trans_m=calib_trans, pnp_px=pnp_px)  # fmt: skip

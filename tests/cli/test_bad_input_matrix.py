@@ -105,6 +105,12 @@ TABLE: dict[str, Cmd] = {
                               [Opt("-o", "lc_out", "folder_out")]),
     "synth field": Cmd(lambda f: [f["tmp"] / "field_out", "--frames", "1", "--robots", "0", "--lidar-points", "10", "--image-scale", "0.05"],
                        [Opt(None, "field_out", "folder_out", index=0), Opt("--field", "field")]),
+    "lidar-field": Cmd(lambda f: ["-b", f["bundle"], "--cloud", f["cloud"], "--field", "rmuc2024", "--init", f["transform"]],
+                       [Opt("--bundle", "bundle", "bundle"), Opt("--cloud", "cloud"), Opt("--init", "transform"),
+                        Opt("--field-mesh", "cloud", skip=("nan", "header"), why="a mesh file (STL/PLY/OBJ): the PCD variants do not apply",
+                            base=lambda f: ["-b", f["bundle"], "--cloud", f["cloud"], "--init", f["transform"]])], _b, creates_bundle=True),
+    "synth match": Cmd(lambda f: [f["tmp"] / "match_out", "--frames", "1", "--robots", "0", "--people", "0", "--lidar-points", "100", "--no-aerial"],
+                       [Opt(None, "match_out", "folder_out", index=0)]),
     "synth radar": Cmd(lambda f: [f["tmp"] / "radar_out", "--scenes", "1"], [Opt(None, "radar_out", "folder_out", index=0)]),
 }
 

@@ -60,6 +60,7 @@ def test_human_output_and_quantised_lists(tmp_path, capsys):
 ])
 def test_bad_input_one_line_exit_2(tmp_path, capsys, break_it, expect):
     ses = tmp_path / "s"
+    tmp_path.mkdir(parents=True, exist_ok=True)  # synth writes into an existing folder
     assert main(["synth", "radar", str(ses), "--scenes", "1", "--seed", "1"]) == 0
     break_it(ses)
     capsys.readouterr()
@@ -73,6 +74,7 @@ def test_bad_input_one_line_exit_2(tmp_path, capsys, break_it, expect):
 # --- issue 18: bad sessions, refusals, the real data sets through the command as shipped --------------------------------
 def _one_scene(tmp_path, extra=()):
     ses = tmp_path / "s"
+    tmp_path.mkdir(parents=True, exist_ok=True)  # synth writes into an existing folder
     assert main(["synth", "radar", str(ses), "--scenes", "2", "--seed", "4", *extra]) == 0
     return ses
 

@@ -152,7 +152,7 @@ def test_malformed_boxes_are_dropped(replay):
     res = pipe.process(0.0, "x", bad)
     assert [r.label for r in res.robots] == ["blue_7"]
     auto = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b))
-    auto.add_cloud(0.0, next(replay.cloud_frames()).points)
+    auto.add_cloud(0.0, next(iter(replay.cloud_frames())).points)
     for k in range(3):  # one box never makes a robot; three consistent ones do
         res = auto.process(k / 30, "x", bad)
         assert [r.label for r in res.robots] == ([] if k < 2 else ["blue_7"]), k
