@@ -5,17 +5,9 @@ Camera: a video file, an image folder (times from ``times.csv`` ``file,t`` if pr
 Clouds: a folder of ``.pcd/.npy/.bin/.ply`` (times from ``times.csv`` or index / hz); a ROS1 ``.bag`` or ROS2 bag
 directory / ``.mcap`` / ``.db3`` with Livox ``CustomMsg`` (livox_ros_driver / livox_ros_driver2) or
 ``sensor_msgs/PointCloud2``, read with ``rosbags`` (no ROS) and decoded to numpy from the message definitions stored
-in the bag (a small layout walker, no per-point Python objects); or live Livox SDK1 UDP point packets.
+in the bag (a small layout walker, no per-point Python objects); or a live Livox LiDAR (SDK 1 or 2, started and
+read by :mod:`radarcal.io.livox`).
 
-Livox live input: **Livox SDK 1 (LiDAR communication protocol v1)** point-data packets as sent by Mid-40 /
-Mid-70 / Horizon / Tele / Avia: an 18-byte header (version u8, slot u8, lidar id u8, reserved u8, status u32,
-timestamp type u8, data type u8, timestamp u64 ns) followed by points of data type 0 (cartesian int32 mm + u8
-reflectivity, 100 per packet), 1 (spherical: depth u32 mm, theta u16, phi u16 in 0.01 deg, reflectivity), 2
-(extended cartesian + tag, 96), 3 (extended spherical, 96), 4 (dual extended cartesian, 48 x 2 returns), 5 (dual
-extended spherical). Data type 6 (IMU) is ignored. radarcal only *listens* on the host data port: the SDK1
-handshake that makes the sensor stream must be done by another tool (Livox Viewer / the SDK sample / a driver on
-the same port is not possible at the same time). SDK2 sensors (Mid-360, HAP) use another packet format and are not
-parsed here.
 """
 
 from __future__ import annotations
@@ -24,13 +16,11 @@ import csv
 import json
 import os
 import re
-import socket
 import threading
 import time
-from collections import deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
 
 import numpy as np
 
@@ -39,23 +29,21 @@ from radarcal.io import read_cloud, read_image
 from radarcal.io.clouds import CLOUD_SUFFIXES
 
 __all__ = [
-    "CameraFrame",
-    "CloudFrame",
-    "image_folder_frames",
-    "video_frames",
-    "cloud_folder",
-    "bag_clouds",
-    "decode_pointcloud2",
-    "parse_livox_packet",
-    "LivoxUdpSource",
-    "Replay",
-    "open_replay",
-    "open_camera",
-    "open_clouds",
-    "merge_by_time",
-    "prefetch_frames",
     "IMAGE_SUFFIXES",
     "SKIPPED",
+    "CameraFrame",
+    "CloudFrame",
+    "Replay",
+    "bag_clouds",
+    "cloud_folder",
+    "decode_pointcloud2",
+    "image_folder_frames",
+    "merge_by_time",
+    "open_camera",
+    "open_clouds",
+    "open_replay",
+    "prefetch_frames",
+    "video_frames",
 ]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
@@ -423,142 +411,19 @@ def bag_clouds(path: str | os.PathLike, topic: str | None = None, t0: float | No
         reader.close()
 
 
-# --- Livox SDK1 UDP --------------------------------------------------------------------------------------------------
-_LIVOX_HDR = np.dtype([("version", "u1"), ("slot", "u1"), ("id", "u1"), ("rsvd", "u1"), ("status", "<u4"), ("ts_type", "u1"), ("data_type", "u1"), ("timestamp", "<u8")])
-_CART = np.dtype([("x", "<i4"), ("y", "<i4"), ("z", "<i4"), ("r", "u1")])
-_CART_EXT = np.dtype([("x", "<i4"), ("y", "<i4"), ("z", "<i4"), ("r", "u1"), ("tag", "u1")])
-_SPH = np.dtype([("depth", "<u4"), ("theta", "<u2"), ("phi", "<u2"), ("r", "u1")])
-_SPH_EXT = np.dtype([("depth", "<u4"), ("theta", "<u2"), ("phi", "<u2"), ("r", "u1"), ("tag", "u1")])
-_DUAL_SPH = np.dtype([("theta", "<u2"), ("phi", "<u2"), ("depth", "<u4"), ("r", "u1"), ("tag", "u1"), ("depth2", "<u4"), ("r2", "u1"), ("tag2", "u1")])
-_LIVOX_TYPES = {0: _CART, 1: _SPH, 2: _CART_EXT, 3: _SPH_EXT, 4: _CART_EXT, 5: _DUAL_SPH}
-
-
-def _sph_to_xyz(depth_mm, theta, phi) -> np.ndarray:
-    d = depth_mm.astype(np.float64) * 1e-3
-    th = np.radians(theta.astype(np.float64) * 0.01)
-    ph = np.radians(phi.astype(np.float64) * 0.01)
-    return np.column_stack([d * np.sin(th) * np.cos(ph), d * np.sin(th) * np.sin(ph), d * np.cos(th)])
-
-
-def parse_livox_packet(buf: bytes) -> tuple[float, np.ndarray, np.ndarray] | None:
-    """One Livox SDK1 point-data packet -> (timestamp s, points (N,3) float32 m, reflectivity (N,)); None for IMU,
-    unknown or malformed packets. Zero points (no return) are dropped."""
-    if len(buf) < _LIVOX_HDR.itemsize:
-        return None
-    h = np.frombuffer(buf, _LIVOX_HDR, 1)[0]
-    dtype = _LIVOX_TYPES.get(int(h["data_type"]))
-    if dtype is None:
-        return None
-    body = buf[_LIVOX_HDR.itemsize :]
-    n = len(body) // dtype.itemsize
-    if n == 0:
-        return None
-    p = np.frombuffer(body, dtype, n)
-    kind = int(h["data_type"])
-    if kind in (0, 2):
-        xyz = np.column_stack([p["x"], p["y"], p["z"]]).astype(np.float32) * np.float32(1e-3)
-        r = p["r"]
-    elif kind == 4:  # two returns per slot, each an extended cartesian point: the array already interleaves them
-        xyz = np.column_stack([p["x"], p["y"], p["z"]]).astype(np.float32) * np.float32(1e-3)
-        r = p["r"]
-    elif kind in (1, 3):
-        xyz = _sph_to_xyz(p["depth"], p["theta"], p["phi"]).astype(np.float32)
-        r = p["r"]
-    else:  # 5: dual spherical
-        a = _sph_to_xyz(p["depth"], p["theta"], p["phi"])
-        b = _sph_to_xyz(p["depth2"], p["theta"], p["phi"])
-        xyz = np.vstack([a, b]).astype(np.float32)
-        r = np.concatenate([p["r"], p["r2"]])
-    keep = np.any(xyz != 0, axis=1)
-    return int(h["timestamp"]) * 1e-9, xyz[keep], r[keep].astype(np.float32)
-
-
-class LivoxUdpSource:
-    """Listens for Livox SDK1 point packets on ``host:port`` in a thread, cuts them into clouds of ``frame_s``
-    (by sensor timestamp) and hands out the newest complete clouds with :meth:`poll` (never blocks)."""
-
-    def __init__(self, host: str = "0.0.0.0", port: int = 56001, frame_s: float = 0.1, max_clouds: int = 20):
-        self.addr = (host, int(port))
-        self.frame_s = float(frame_s)
-        self.clouds: deque[CloudFrame] = deque(maxlen=max_clouds)
-        self.packets = 0
-        self.bad_packets = 0
-        self._stop = threading.Event()
-        self._lock = threading.Lock()
-        self._parts: list[tuple[np.ndarray, np.ndarray]] = []
-        self._frame_start: float | None = None
-        self._t_wall0 = time.monotonic()
-        self._sensor_t0: float | None = None
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            self.sock.bind(self.addr)
-        except OSError as e:
-            raise InputError(f"livox://{host}:{port}", f"cannot listen ({e.strerror})") from None
-        self.sock.settimeout(0.1)
-        self._thread = threading.Thread(target=self._run, daemon=True, name="livox-udp")
-
-    def start(self) -> "LivoxUdpSource":
-        self._thread.start()
-        return self
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(1.0)
-        self.sock.close()
-
-    def feed(self, buf: bytes) -> None:
-        r = parse_livox_packet(buf)
-        if r is None:
-            self.bad_packets += 1
-            return
-        self.packets += 1
-        t, xyz, refl = r
-        if self._sensor_t0 is None:
-            self._sensor_t0 = t
-        t -= self._sensor_t0
-        if self._frame_start is None:
-            self._frame_start = t
-        if t - self._frame_start >= self.frame_s and self._parts:
-            pts = np.vstack([p for p, _ in self._parts])
-            inten = np.concatenate([i for _, i in self._parts])
-            with self._lock:
-                self.clouds.append(CloudFrame(self._frame_start + self.frame_s, pts, inten, f"livox@{self._frame_start:.3f}"))
-            self._parts = []
-            self._frame_start = t
-        self._parts.append((xyz, refl))
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            try:
-                buf = self.sock.recv(2048)
-            except socket.timeout:
-                continue
-            except OSError:
-                break
-            self.feed(buf)
-
-    def poll(self) -> list[CloudFrame]:
-        with self._lock:
-            out = list(self.clouds)
-            self.clouds.clear()
-        return out
-
-
 def open_clouds(spec: str, topic: str | None = None, hz: float = 10.0):
-    """A cloud source from a folder, a bag, or ``livox://host:port`` (returns an iterator or a LivoxUdpSource)."""
-    if spec.startswith("livox://"):
-        hostport = spec[len("livox://") :]
-        host, _, port = hostport.rpartition(":")
-        if not port.isdigit():
-            raise InputError(spec, "expected livox://HOST:PORT")
-        return LivoxUdpSource(host or "0.0.0.0", int(port)).start()
+    """A cloud source from a folder, a bag, or a live Livox (``livox://IP``, ``livox1://``, ``livox2://``: a started
+    :class:`radarcal.io.livox.LivoxSource`, polled)."""
+    if spec.startswith(("livox://", "livox1://", "livox2://")):
+        from radarcal.io.livox import open_livox
+
+        return open_livox(spec)
     p = Path(spec)
     if p.is_dir() and not (p / "metadata.yaml").exists():
         return cloud_folder(p, hz)
     if p.exists():
         return bag_clouds(p, topic)
-    raise InputError(spec, "cloud source not found (expected a folder of clouds, a ROS bag or livox://HOST:PORT)")
+    raise InputError(spec, "cloud source not found (expected a folder of clouds, a ROS bag or livox://IP)")
 
 
 # --- replay folder ---------------------------------------------------------------------------------------------------
@@ -688,12 +553,12 @@ def prefetch_frames(frames: Iterator[CameraFrame], depth: int = 3, latest_only: 
 # --- pairing ---------------------------------------------------------------------------------------------------------
 def merge_by_time(frames: Iterator[CameraFrame], clouds, cloud_offset_s: float = 0.0) -> Iterator[tuple[CameraFrame, list[CloudFrame]]]:
     """Yield each camera frame with the clouds that arrived since the previous frame (cloud time + offset <= frame
-    time). ``clouds`` is an iterator (files, bags: read ahead lazily) or a :class:`LivoxUdpSource` (polled)."""
+    time). ``clouds`` is an iterator (files, bags: read ahead lazily) or a live source with a non-blocking ``poll()``."""
     if clouds is None:
         for f in frames:
             yield f, []
         return
-    if isinstance(clouds, LivoxUdpSource):
+    if hasattr(clouds, "poll"):
         for f in frames:
             yield f, clouds.poll()
         return
