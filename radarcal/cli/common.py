@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import json
 import sys
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import typer
 from rich.console import Console
 
 from radarcal.plain import to_plain
 
-__all__ = ["err_console", "emit", "progress", "BundleOpt", "JsonOpt", "to_jsonable", "command_line"]
+__all__ = ["BundleOpt", "JsonOpt", "command_line", "emit", "err_console", "progress", "to_jsonable"]
 
 # Progress bars and logs go to stderr so that --json output on stdout stays clean.
 err_console = Console(stderr=True)

@@ -15,11 +15,13 @@ from radarcal.cli import (
     intrinsics_cmd,
     lidar_camera_cmd,
     radar_lidar_cmd,
+    record_cmd,
     report_cmd,
     run_cmd,
     synth_board_cmd,
     synth_field_cmd,
     synth_lidar_camera_cmd,
+    synth_livox_sim_cmd,
     synth_radar_cmd,
 )
 from radarcal.errors import InputError
@@ -41,6 +43,7 @@ app.command("field-pnp")(field_pnp_cmd.field_pnp)
 app.command("radar-lidar")(radar_lidar_cmd.radar_lidar)
 app.command("run")(run_cmd.run)
 app.command("hero-offset")(run_cmd.hero_offset)
+app.command("record")(record_cmd.record)
 app.command("report")(report_cmd.report)
 
 # `radarcal synth <scene>`: ground-truth scene generators
@@ -50,6 +53,7 @@ synth_app.command("board")(synth_board_cmd.synth_board)
 synth_app.command("lidar-camera")(synth_lidar_camera_cmd.synth_lidar_camera)
 synth_app.command("field")(synth_field_cmd.synth_field)
 synth_app.command("radar")(synth_radar_cmd.synth_radar)
+synth_app.command("livox-sim")(synth_livox_sim_cmd.synth_livox_sim)
 
 
 def _click_classes(name: str) -> tuple[type, ...]:
@@ -101,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         click.echo("interrupted", err=True)
         return 130
-    except Exception as e:  # noqa: BLE001 - last line of defence: one line, no traceback
+    except Exception as e:
         if debug:
             raise
         click.echo(f"error: internal error: {e.__class__.__name__}: {e} (run with --debug for the traceback)", err=True)

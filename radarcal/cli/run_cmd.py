@@ -9,14 +9,15 @@ import typer
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
 
-__all__ = ["run", "hero_offset", "compute_hero_offset"]
+__all__ = ["compute_hero_offset", "hero_offset", "run"]
 
 
 def run(
     bundle: Path = typer.Option(None, "--bundle", "-b", help="Calibration bundle (default: calib.yaml inside --replay)."),
-    replay: Path = typer.Option(None, "--replay", help="Replay folder (images/, clouds/, detections.jsonl) as written by `radarcal synth field`."),
+    replay: Path = typer.Option(None, "--replay", help="A recording (`radarcal record`) or a replay folder (images/, clouds/, detections.jsonl) as written by `radarcal synth field`."),
+    speed: float = typer.Option(0.0, "--speed", help="Replay of a recording: 1 = real speed, 2 = twice as fast, 0 = as fast as possible."),
     video: str = typer.Option(None, "--video", help="Camera: video file, image folder, device index or URL."),
-    clouds: str = typer.Option(None, "--clouds", help="LiDAR: folder of PCD/npy/bin, ROS1/ROS2 bag, or livox://HOST:PORT (Livox SDK1 UDP)."),
+    clouds: list[str] = typer.Option(None, "--clouds", help="LiDAR: folder of PCD/npy/bin, ROS1/ROS2 bag, or a live Livox [NAME=]livox://IP (livox1:// SDK 1, livox2:// SDK 2; repeat for several LiDARs, merged in the frame of --lidar)."),
     cloud_topic: str = typer.Option(None, "--cloud-topic", help="Bag topic (default: every Livox CustomMsg / PointCloud2 topic)."),
     cloud_offset: float = typer.Option(0.0, "--cloud-time-offset", help="Seconds added to cloud times before pairing with frames."),
     detector: Path = typer.Option(None, "--detector", help="YOLOv5-style ONNX model."),
@@ -24,7 +25,7 @@ def run(
     conf: float = typer.Option(0.25, "--conf", help="Detector confidence threshold."),
     threads: int = typer.Option(0, "--threads", help="onnxruntime intra-op threads (0 = its default)."),
     detections: Path = typer.Option(None, "--detections", help="Precomputed detections (JSON lines, one per frame)."),
-    serial: str = typer.Option(None, "--serial", help="Referee serial port, e.g. /dev/ttyUSB0 (115200 8N1)."),
+    serial: str = typer.Option(None, "--serial", help="Referee serial port, e.g. /dev/ttyUSB0 (115200 8N1); replaying a recording also 'pty' (a new pseudo-terminal) or 'dry-run' (default)."),
     out: Path = typer.Option(None, "--out", help="Per-frame JSON lines (robots in field coordinates)."),
     minimap: Path = typer.Option(None, "--minimap", help="Minimap output: .png (last frame + trails) or .mp4."),
     camera: str = typer.Option(None, "--camera", help="Camera name in the bundle (default: the only one)."),
@@ -39,13 +40,30 @@ def run(
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
     from radarcal.bundle import load_bundle
+    from radarcal.io.recording import is_recording
     from radarcal.runtime.detector import DetectionsFile, OnnxDetector, read_class_names
     from radarcal.runtime.loop import OnlineEvaluator, Pipeline, RunConfig, pick_frames
     from radarcal.runtime.loop import run as run_loop
-    from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, open_replay, prefetch_frames
+    from radarcal.runtime.sources import (
+        merge_by_time,
+        open_camera,
+        open_clouds,
+        open_replay,
+        prefetch_frames,
+    )
 
     if (replay is None) == (video is None):
         raise InputError("radarcal run", "give exactly one of --replay DIR or --video SRC")
+    if replay is not None and is_recording(replay):
+        from radarcal.cli.run_recording import run_recording
+
+        return run_recording(replay, bundle=bundle, speed=speed, detector=detector, names=names, conf=conf, threads=threads, detections=detections, serial=serial,
+                             out=out, minimap=minimap, camera=camera, lidar=lidar, team=team, season=season, max_frames=max_frames, no_lidar=no_lidar,
+                             quiet=quiet, as_json=as_json, sentry_xy=sentry_xy)  # fmt: skip
+    clouds = list(clouds or [])
+    live_multi = len(clouds) > 1
+    if live_multi and not all("://" in c for c in clouds):
+        raise InputError("--clouds", "several --clouds are for live LiDARs (NAME=livox://IP ...)")
     if detector is not None and detections is not None:
         raise InputError("radarcal run", "give at most one of --detector and --detections")
     if team is not None and team not in ("red", "blue"):
@@ -56,7 +74,7 @@ def run(
             raise InputError("--bundle", "required (the replay has no calib.yaml)")
         bundle = rep.bundle
     b = load_bundle(bundle)
-    has_clouds = not no_lidar and ((rep is not None and bool(rep.clouds)) or clouds is not None)
+    has_clouds = not no_lidar and ((rep is not None and bool(rep.clouds)) or bool(clouds))
     cam_name, lidar_name = pick_frames(b, camera or (rep.meta.get("camera") if rep else None), lidar or (rep.meta.get("lidar") if rep and has_clouds else None), has_clouds)
     sxy = None
     if sentry_xy:
@@ -71,20 +89,24 @@ def run(
 
     if detector is not None:
         det = OnnxDetector(detector, read_class_names(names) if names else None, conf_thres=conf, threads=threads)
-        detect = lambda f: det(f.load())  # noqa: E731
+        detect = lambda f: det(f.load())
     else:
         det_path = detections or (rep.detections if rep else None)
         if det_path is None:
             raise InputError("radarcal run", "no detector: give --detector model.onnx or --detections FILE (or a replay with detections.jsonl)")
         dfile = DetectionsFile.read(det_path)
-        detect = lambda f: dfile.lookup(f.t, f.name)  # noqa: E731
+        detect = lambda f: dfile.lookup(f.t, f.name)
 
     if rep is not None:
         frames = rep.camera_frames(need_pixels=detector is not None)
         cloud_src = rep.cloud_frames() if has_clouds else None
     else:
         frames = open_camera(video)
-        cloud_src = open_clouds(clouds, cloud_topic) if has_clouds else None
+        cloud_src = None
+        if has_clouds and any(c.startswith("livox") for c in clouds):
+            cloud_src = live_lidars(b, clouds, lidar_name)
+        elif has_clouds:
+            cloud_src = open_clouds(clouds[0], cloud_topic)
     if detector is not None:  # the pixels are needed: decode them ahead in a thread (live sources: newest frame only)
         live = video is not None and (video.isdigit() or "://" in video)
         frames = prefetch_frames(frames, latest_only=live)
@@ -95,8 +117,11 @@ def run(
         link = SerialLink(serial, season=cfg.season).start()
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     try:
+        extra = (lambda: health_text(cloud_src.health())) if hasattr(cloud_src, "health") else None
         summary = run_loop(pipe, merge_by_time(frames, cloud_src, cloud_offset), detect, out, minimap, link, status=not quiet and not as_json,
-                           max_frames=max_frames, on_frame=evaluator)  # fmt: skip
+                           max_frames=max_frames, on_frame=evaluator, status_extra=extra)  # fmt: skip
+        if hasattr(cloud_src, "health"):
+            summary["health"] = cloud_src.health()
     finally:
         if link is not None:
             link.close()
@@ -212,6 +237,42 @@ def _hero_range_from_recording(b, replay: Path, team: str) -> tuple[float, dict]
         raise InputError(replay, f"our hero ({team}_1) was located in only {len(ranges)} frames")
     r = np.asarray(ranges)
     return float(np.median(r)), {"frames_with_hero": len(r), "measured_spread_m": float(np.percentile(r, 90) - np.percentile(r, 10))}
+
+
+def live_lidars(b, specs: list[str], primary: str | None):
+    """Start every live LiDAR (``[NAME=]livox://IP``); clouds move into the frame of ``primary`` through the bundle."""
+    from radarcal.cli.record_cmd import split_named
+    from radarcal.io.livox import open_livox
+    from radarcal.runtime.replay import LiveClouds
+
+    sources, T = {}, {}
+    try:
+        for i, spec in enumerate(specs):
+            name, url = split_named(spec, primary if i == 0 and primary else f"lidar{i}")
+            if primary and name != primary:
+                if not b.has_T(primary, name):
+                    raise InputError(b.path, f"no extrinsic between {primary!r} and {name!r} (T_{primary}_{name}) for the second LiDAR")
+                T[name] = b.T(primary, name)
+            sources[name] = open_livox(url, sensor=name)
+    except Exception:
+        for s in sources.values():
+            s.close()
+        raise
+    return LiveClouds(sources, T)
+
+
+def health_text(health: dict[str, dict]) -> str:
+    """Status-line part of the sensors' health: rate, silence (ground-ray fallback), drops, reconnects."""
+    parts = []
+    for name, h in health.items():
+        age = h.get("last_seen_age_s")
+        if age is None or age > 1.0:
+            parts.append(f"{name} SILENT {'-' if age is None else f'{age:.1f}s'} (ground-ray fallback)")
+        else:
+            parts.append(f"{name} {h['rate_pts_s'] / 1000:.0f}k pts/s")
+        if h.get("drops") or h.get("reconnects") or h.get("bad_packets") or h.get("truncated_packets"):
+            parts[-1] += f" drops {h['drops']} reconn {h['reconnects']} bad {h['bad_packets'] + h['truncated_packets']}"
+    return (" | " + " | ".join(parts)) if parts else ""
 
 
 _ = err_console  # stderr console kept for symmetry with other commands

@@ -21,22 +21,25 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from radarcal.board import BoardSpec, object_points  # the one board model; re-exported under the old path
+from radarcal.board import (  # the one board model; re-exported under the old path
+    BoardSpec,
+    object_points,
+)
 
 __all__ = [
     "BoardSpec",
     "Detection",
-    "object_points",
+    "choose_charuco_layout",
     "detect_board",
-    "detect_chessboard",
     "detect_charuco",
-    "refine_corners",
-    "neighbour_gaps",
+    "detect_chessboard",
+    "diagnose_board_size",
     "edge_width_px",
     "grid_directions",
-    "diagnose_board_size",
-    "choose_charuco_layout",
+    "neighbour_gaps",
     "normalise_order",
+    "object_points",
+    "refine_corners",
 ]
 
 

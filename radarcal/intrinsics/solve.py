@@ -27,14 +27,14 @@ from radarcal.intrinsics._blas import single_thread_blas
 __all__ = [
     "MODELS",
     "Calibration",
-    "UncertaintyMap",
     "SolveError",
-    "calibrate",
-    "solve_once",
-    "residuals",
-    "projection_uncertainty",
-    "param_names",
+    "UncertaintyMap",
     "board_pose",
+    "calibrate",
+    "param_names",
+    "projection_uncertainty",
+    "residuals",
+    "solve_once",
 ]
 
 MODELS = ("pinhole5", "pinhole8", "fisheye")

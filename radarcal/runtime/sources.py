@@ -1,7 +1,7 @@
 """Inputs of ``radarcal run``: camera frames, LiDAR clouds, a replay folder, and time pairing.
 
 Camera: a video file, an image folder (times from ``times.csv`` ``file,t`` if present, else index / fps), or a live
-``cv2.VideoCapture`` index / URL (wall-clock times).
+``cv2.VideoCapture`` index / URL (host-clock receive times, reconnecting: :mod:`radarcal.io.camera_live`).
 Clouds: a folder of ``.pcd/.npy/.bin/.ply`` (times from ``times.csv`` or index / hz); a ROS1 ``.bag`` or ROS2 bag
 directory / ``.mcap`` / ``.db3`` with Livox ``CustomMsg`` (livox_ros_driver / livox_ros_driver2) or
 ``sensor_msgs/PointCloud2``, read with ``rosbags`` (no ROS) and decoded to numpy from the message definitions stored
@@ -17,7 +17,6 @@ import json
 import os
 import re
 import threading
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -146,31 +145,27 @@ def image_folder_frames(folder: str | os.PathLike, fps: float = 30.0) -> Iterato
 
 
 def video_frames(source: str, fps: float | None = None) -> Iterator[CameraFrame]:
-    """A video file (times from the container) or a live index / URL (wall-clock time since start)."""
+    """A video file (times from the container) or a live index / URL (:class:`radarcal.io.camera_live.LiveCamera`:
+    host-clock receive times, reopened when unplugged, stall frames instead of waiting)."""
     import cv2
 
-    live = source.isdigit() or "://" in source
-    cap = cv2.VideoCapture(int(source) if source.isdigit() else source)
+    if source.isdigit() or "://" in source:
+        from radarcal.io.camera_live import LiveCamera
+
+        yield from LiveCamera(source)
+        return
+    cap = cv2.VideoCapture(source)
     if not cap.isOpened():
         raise InputError(source, "cannot open video source")
     rate = fps or cap.get(cv2.CAP_PROP_FPS) or 30.0
-    t0 = time.monotonic()
     i = 0
     try:
         while True:
             ok, img = cap.read()
             if not ok:
-                if live:
-                    time.sleep(0.01)
-                    if time.monotonic() - t0 > 5.0 and i == 0:
-                        raise InputError(source, "live source delivers no frames")
-                    continue
                 break
-            if live:
-                t = time.monotonic() - t0
-            else:
-                ms = cap.get(cv2.CAP_PROP_POS_MSEC)
-                t = ms / 1000.0 if ms and ms > 0 and i > 0 else i / rate
+            ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+            t = ms / 1000.0 if ms and ms > 0 and i > 0 else i / rate
             yield CameraFrame(t, f"{i:06d}", (lambda img=img: img), i)
             i += 1
     finally:
