@@ -172,7 +172,7 @@ def _stream_exact(model: str, n_packets: int, timeout: float):
             n_cloud_points[0] += sum(len(c) for c in src.poll())
             return sim.done() and src.health.packets + src.health.drops >= sim.packets_sent
 
-        assert _wait(drained, timeout), (src.health.snapshot(), sim.packets_sent)
+        assert _wait(drained, timeout), (src.health.snapshot(), sim.packets_sent)  # the in-process simulator may lag under load: it waits
         h = src.health
         assert h.state == "streaming" and h.sdk == sim.sdk and sim.handshakes == 1
         assert h.packets == sim.packets_sent == n_packets and h.drops == 0 and h.bad_packets == 0
@@ -194,7 +194,7 @@ def test_simulator_discovery_handshake_streaming_without_loss(model, n):
 @pytest.mark.parametrize("model", ["mid70", "hap"])
 def test_simulator_60s_stream_without_loss(model):
     rate = {"mid70": 100_000, "hap": 452_000}[model]
-    _stream_exact(model, int(60 * rate / 96), 90.0)
+    _stream_exact(model, int(60 * rate / 96), 300.0)
 
 
 @pytest.mark.parametrize("model", ["mid70", "mid360"])

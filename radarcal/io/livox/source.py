@@ -46,6 +46,7 @@ class LivoxHealth:
     clouds: int = 0
     overflow_clouds: int = 0  # clouds discarded because nobody polled
     last_t: float | None = None  # clock.now() of the last good packet
+    cpu_s: float = 0.0  # CPU time of the source's I/O thread (receive + decode)
     _rate: deque = field(default_factory=lambda: deque(maxlen=64), repr=False)
 
     def note_rate(self, t: float, n_points: int) -> None:
@@ -66,7 +67,7 @@ class LivoxHealth:
         return {"sensor": self.sensor, "sdk": self.sdk, "device": self.device, "state": self.state, "packets": self.packets, "points": self.points,
                 "raw_points": self.raw_points, "imu_packets": self.imu_packets, "bad_packets": self.bad_packets, "truncated_packets": self.truncated_packets,
                 "drops": self.drops, "reconnects": self.reconnects, "clouds": self.clouds, "overflow_clouds": self.overflow_clouds,
-                "rate_pts_s": round(self.rate(), 1), "last_seen_age_s": None if self.last_t is None else round(now - self.last_t, 3)}  # fmt: skip
+                "rate_pts_s": round(self.rate(), 1), "cpu_s": round(self.cpu_s, 3), "last_seen_age_s": None if self.last_t is None else round(now - self.last_t, 3)}  # fmt: skip
 
 
 class PacketDecoder:
@@ -542,6 +543,7 @@ class LivoxSource:
     def _run(self) -> None:
         last_flush = time.monotonic()
         while not self._stop.is_set():
+            self.health.cpu_s = time.thread_time()
             events = self.sel.select(0.01)
             now = time.monotonic()
             for key, _ in events:
