@@ -34,6 +34,8 @@ def run(
     season: int = typer.Option(None, "--season", help="Referee protocol season (0x0305 layout, rate limits); default bundle runtime.referee_season."),
     sentry_xy: str = typer.Option(None, "--sentry-xy", help="Our sentry's field position X,Y (m) when it is not tracked."),
     max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
+    record: Path = typer.Option(None, "--record", help="Live run: also record every input (LiDAR packets, camera frames, serial bytes) into this new folder (replay: --replay)."),
+    realtime_video: bool = typer.Option(False, "--realtime-video", help="Play a --video file at its frame rate with receive times, as a live camera (station tests)."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
     as_json: bool = JsonOpt,
@@ -60,6 +62,8 @@ def run(
         return run_recording(replay, bundle=bundle, speed=speed, detector=detector, names=names, conf=conf, threads=threads, detections=detections, serial=serial,
                              out=out, minimap=minimap, camera=camera, lidar=lidar, team=team, season=season, max_frames=max_frames, no_lidar=no_lidar,
                              quiet=quiet, as_json=as_json, sentry_xy=sentry_xy)  # fmt: skip
+    if record is not None and replay is not None:
+        raise InputError("--record", "records live inputs: not with --replay")
     clouds = list(clouds or [])
     live_multi = len(clouds) > 1
     if live_multi and not all("://" in c for c in clouds):
@@ -97,24 +101,37 @@ def run(
         dfile = DetectionsFile.read(det_path)
         detect = lambda f: dfile.lookup(f.t, f.name)
 
+    recorder = None
     if rep is not None:
         frames = rep.camera_frames(need_pixels=detector is not None)
         cloud_src = rep.cloud_frames() if has_clouds else None
     else:
-        frames = open_camera(video)
+        from radarcal.runtime.replay import paced_video, start_recording
+
+        frames = paced_video(video) if realtime_video else open_camera(video)
+        recorder = start_recording(record, b, cam_name, video, clouds) if record is not None else None
         cloud_src = None
-        if has_clouds and any(c.startswith("livox") for c in clouds):
-            cloud_src = live_lidars(b, clouds, lidar_name)
+        if has_clouds and any(c.partition("=")[2 if "=" in c.split("://")[0] else 0].startswith("livox") for c in clouds):
+            cloud_src = live_lidars(b, clouds, lidar_name, tap=recorder.lidar if recorder else None)
         elif has_clouds:
             cloud_src = open_clouds(clouds[0], cloud_topic)
     if detector is not None:  # the pixels are needed: decode them ahead in a thread (live sources: newest frame only)
         live = video is not None and (video.isdigit() or "://" in video)
         frames = prefetch_frames(frames, latest_only=live)
+    if rep is None and recorder is not None:
+        from radarcal.runtime.replay import recorded
+
+        frames = recorded(frames, recorder, cam_name)
     link = None
     if serial:
         from radarcal.runtime.serial_link import SerialLink
 
-        link = SerialLink(serial, season=cfg.season).start()
+        factory = None
+        if rep is None and recorder is not None:
+            from radarcal.runtime.replay import tapped_serial
+
+            factory = tapped_serial(recorder)
+        link = SerialLink(serial, season=cfg.season, serial_factory=factory).start()
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     try:
         extra = (lambda: health_text(cloud_src.health())) if hasattr(cloud_src, "health") else None
@@ -127,7 +144,13 @@ def run(
             link.close()
         if cloud_src is not None and hasattr(cloud_src, "close"):
             cloud_src.close()
+        if recorder is not None:
+            from radarcal.runtime.replay import finish_recording
+
+            rec_manifest = finish_recording(recorder, cloud_src, serial)
     summary.pop("results")
+    if recorder is not None:
+        summary["recording"] = {"out": str(record), "streams": rec_manifest["streams"], "dropped_camera_frames": rec_manifest["dropped_camera_frames"]}
     from radarcal.runtime.sources import SKIPPED
 
     summary["skipped_inputs"] = len(SKIPPED)
@@ -239,7 +262,7 @@ def _hero_range_from_recording(b, replay: Path, team: str) -> tuple[float, dict]
     return float(np.median(r)), {"frames_with_hero": len(r), "measured_spread_m": float(np.percentile(r, 90) - np.percentile(r, 10))}
 
 
-def live_lidars(b, specs: list[str], primary: str | None):
+def live_lidars(b, specs: list[str], primary: str | None, tap=None):
     """Start every live LiDAR (``[NAME=]livox://IP``); clouds move into the frame of ``primary`` through the bundle."""
     from radarcal.cli.record_cmd import split_named
     from radarcal.io.livox import open_livox
@@ -253,7 +276,7 @@ def live_lidars(b, specs: list[str], primary: str | None):
                 if not b.has_T(primary, name):
                     raise InputError(b.path, f"no extrinsic between {primary!r} and {name!r} (T_{primary}_{name}) for the second LiDAR")
                 T[name] = b.T(primary, name)
-            sources[name] = open_livox(url, sensor=name)
+            sources[name] = open_livox(url, sensor=name, packet_tap=tap)
     except Exception:
         for s in sources.values():
             s.close()

@@ -159,3 +159,80 @@ def advancing(pairs, link: ReplayLink):
     for frame, clouds in pairs:
         link.advance(frame.t)
         yield frame, clouds
+
+
+# --- recording during a live run -------------------------------------------------------------------------------------
+def paced_video(path: str) -> Iterator[CameraFrame]:
+    """A video file played at its frame rate, each frame stamped with the host clock when it is due - a live camera
+    for station tests (no frame is skipped when the loop is slow: the video then runs late)."""
+    import time
+
+    import cv2
+
+    from radarcal.errors import InputError
+    from radarcal.io import clock
+
+    cap = cv2.VideoCapture(path)
+    if not cap.isOpened():
+        raise InputError(path, "cannot open video")
+    fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
+    t0 = time.monotonic()
+    i = 0
+    try:
+        while True:
+            ok, img = cap.read()
+            if not ok:
+                return
+            delay = t0 + i / fps - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            yield CameraFrame(clock.now(), f"{i:06d}", (lambda img=img: img), i)
+            i += 1
+    finally:
+        cap.release()
+
+
+def start_recording(out, bundle, camera: str, video: str | None, clouds: list[str]):
+    from radarcal.cli.record_cmd import split_named
+    from radarcal.io.recording import Recorder
+
+    sensors = [{"name": split_named(c, f"lidar{i}")[0], "kind": "lidar", "url": split_named(c, f"lidar{i}")[1]} for i, c in enumerate(clouds) if "://" in c]
+    if video is not None:
+        sensors.append({"name": camera, "kind": "camera", "source": video})
+    return Recorder(out, sensors, bundle.path if bundle is not None else None)
+
+
+def recorded(frames, recorder, camera: str):
+    """Pass frames through, handing each image (with its time and name) to the recorder."""
+    for f in frames:
+        if not getattr(f, "stalled", False):
+            try:
+                img = f.load()
+            except Exception:  # noqa: BLE001 - an unreadable frame is the loop's to report
+                yield f
+                continue
+            recorder.camera(camera, f.t, f.name, img)
+            f = CameraFrame(f.t, f.name, (lambda img=img: img), f.index)
+        yield f
+
+
+def tapped_serial(recorder):
+    from radarcal.io.recording import TapSerial
+
+    def factory(port, baud):
+        import serial as pyserial
+
+        return TapSerial(pyserial.Serial(port, baud, bytesize=8, parity="N", stopbits=1, timeout=0, write_timeout=0.2), recorder.serial)
+
+    return factory
+
+
+def finish_recording(recorder, cloud_src, serial: str | None) -> dict:
+    health = cloud_src.health() if hasattr(cloud_src, "health") else {}
+    for s in recorder.sensors:
+        if s["kind"] == "lidar" and s["name"] in health:
+            src = cloud_src.sources[s["name"]]
+            s.update({"sdk": health[s["name"]]["sdk"], "device": health[s["name"]]["device"], "frame_s": src.frame_s})
+    if serial:
+        recorder.sensors.append({"name": "referee", "kind": "serial", "port": serial})
+    return recorder.close({"health": health})
