@@ -20,6 +20,7 @@ def synth_livox_sim(
     duration: float = typer.Option(None, "--duration", help="Stop after this many seconds (default: Ctrl-C)."),
     outage_at: float = typer.Option(None, "--outage-at", help="Go silent (no heartbeat answers, no data) at this time (s)."),
     outage_s: float = typer.Option(2.0, "--outage-s", help="Length of the outage (s)."),
+    packets: int = typer.Option(None, "--packets", help="Stop after streaming this many point packets."),
     bad_every: float = typer.Option(0.0, "--bad-every", help="Send one malformed and one truncated packet every this many seconds (0: never)."),
 ) -> None:
     """Answer discovery and handshake, stream a generated scene at the sensor's packet rate, drop heartbeats on request."""
@@ -32,7 +33,7 @@ def synth_livox_sim(
             raise InputError("--ip/--host", f"{a}: the simulator runs on loopback addresses (127.x.y.z) only")
     if scene is not None and not (scene / "clouds").is_dir():
         raise InputError(scene, "no clouds/ folder (expected a `radarcal synth field` replay folder)")
-    sim = LivoxSimulator(model, ip=ip, host=host, discovery_port=discovery_port, rate=rate, scene=scene).start()
+    sim = LivoxSimulator(model, ip=ip, host=host, discovery_port=discovery_port, rate=rate, scene=scene, max_packets=packets).start()
     url = f"livox{sim.sdk}://{ip}?host={host}" + (f"&discovery_port={discovery_port}" if discovery_port else "")
     typer.echo(f"simulated {model} (SDK {sim.sdk}) on {ip}: radarcal run --clouds '{url}' ...", err=True)
     t0 = time.monotonic()
@@ -41,6 +42,9 @@ def synth_livox_sim(
     try:
         while duration is None or time.monotonic() - t0 < duration:
             time.sleep(0.05)
+            if sim.done():
+                time.sleep(0.5)
+                break
             now = time.monotonic() - t0
             if outage_at is not None and not did_outage and now >= outage_at:
                 sim.outage(outage_s)
@@ -53,4 +57,4 @@ def synth_livox_sim(
         pass
     finally:
         sim.close()
-    typer.echo(f"sent {sim.packets_sent} packets, {sim.points_sent} points, {sim.bad_sent} malformed, {sim.truncated_sent} truncated; handshakes {sim.handshakes}")
+    typer.echo(f"sent {sim.packets_sent} packets ({sim.slots_sent} point slots), {sim.points_sent} points, {sim.bad_sent} malformed, {sim.truncated_sent} truncated; handshakes {sim.handshakes}")

@@ -68,7 +68,7 @@ class Recorder:
     manifest."""
 
     def __init__(self, out: str | os.PathLike, sensors: list[dict], bundle: str | os.PathLike | None = None, jpeg_quality: int = 90, level: int = 3,
-                 max_queued_frames: int = 30):  # fmt: skip
+                 max_queued_frames: int = 60, encoders: int = 2):  # fmt: skip
         self.out = Path(out)
         if self.out.exists() and any(self.out.iterdir()):
             raise InputError(self.out, "exists and is not empty (a recording is never overwritten)")
@@ -87,6 +87,10 @@ class Recorder:
         self.t_first: float | None = None
         self.t_last: float | None = None
         self.started = time.time()
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._pool = ThreadPoolExecutor(max(1, encoders), thread_name_prefix="recorder-jpeg")  # cv2.imencode releases the GIL
+        self._pending: dict[str, bytearray] = {}
         self._thread = threading.Thread(target=self._run, daemon=True, name="recorder")
         self._thread.start()
 
@@ -104,8 +108,14 @@ class Recorder:
                 self.dropped_frames += 1
                 return False
             self._frames_queued += 1
-        self._q.put(("camera-" + name, frame, t, img))
+        self._q.put(("camera-" + name, frame, t, self._pool.submit(self._encode, img)))
         return True
+
+    def _encode(self, img: np.ndarray) -> bytes | None:
+        import cv2
+
+        ok, jpg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
+        return jpg.tobytes() if ok else None
 
     # --- writer ----------------------------------------------------------------------------------------------------
     def _file(self, key: str):
@@ -120,26 +130,32 @@ class Recorder:
         return f
 
     def _run(self) -> None:
-        import cv2
-
         while True:
-            item = self._q.get()
+            try:
+                item = self._q.get(timeout=0.2)
+            except queue.Empty:
+                self._drain()
+                continue
             if item is None:
                 break
             key, a, t, payload = item
             f = self._file(key)
             if key.startswith("camera-"):
+                data = payload.result()  # frames are written in arrival order; encoding ran in the pool
                 with self._lock:
                     self._frames_queued -= 1
-                ok, jpg = cv2.imencode(".jpg", payload, [cv2.IMWRITE_JPEG_QUALITY, self.quality])
-                if not ok:
+                if data is None:
                     continue
                 name = str(a).encode()
-                data = jpg.tobytes()
                 f.write(_JPG.pack(t, self.counts[key]["records"], len(name), len(data)) + name + data)
                 n = len(data)
-            else:
-                f.write(_PKT.pack(t, a, len(payload)) + payload)
+            else:  # small records: batched into 64 kB writes (one compressor call per batch, not per datagram)
+                buf = self._pending.setdefault(key, bytearray())
+                buf += _PKT.pack(t, a, len(payload))
+                buf += payload
+                if len(buf) >= 1 << 16:
+                    f.write(bytes(buf))
+                    buf.clear()
                 n = len(payload)
             c = self.counts[key]
             c["records"] += 1
@@ -147,9 +163,17 @@ class Recorder:
             self.t_first = t if self.t_first is None else min(self.t_first, t)
             self.t_last = t if self.t_last is None else max(self.t_last, t)
 
+    def _drain(self) -> None:
+        for key, buf in self._pending.items():
+            if buf:
+                self._files[key].write(bytes(buf))
+                buf.clear()
+
     def close(self, extra: dict | None = None) -> dict:
         self._q.put(None)
         self._thread.join()
+        self._drain()
+        self._pool.shutdown()
         for f in self._files.values():
             f.close()
         man = {"format": FORMAT, "version": VERSION, "created_unix": self.started, "sensors": self.sensors, "versions": _versions(),

@@ -73,7 +73,7 @@ class LivoxSimulator:
 
     def __init__(self, model: str = "mid70", ip: str = "127.0.0.1", host: str = "127.0.0.1", discovery_port: int | None = None, cmd_port: int | None = None,
                  rate: float | None = None, scene: str | Path | None = None, hz: float = 10.0, max_packets: int | None = None, broadcast_s: float = 0.2,
-                 hb_timeout_s: float = 3.0, seed: int = 0, t0_ns: int = 5_000_000_000):  # fmt: skip
+                 hb_timeout_s: float = 3.0, seed: int = 0, t0_ns: int = 5_000_000_000, discovery_bind: str | None = None):  # fmt: skip
         if model not in MODELS:
             raise ValueError(f"unknown model {model!r} ({', '.join(MODELS)})")
         self.model = model
@@ -117,9 +117,16 @@ class LivoxSimulator:
         if self.sdk == 2 and self.discovery_port != self.cmd_port:
             self.disc = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
             self.disc.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self.disc.bind((ip, self.discovery_port))
+            self.disc.bind((discovery_bind or ip, self.discovery_port))  # "0.0.0.0": also hears broadcast discovery (isolated test networks)
             self.disc.setblocking(False)
             self.sel.register(self.disc, selectors.EVENT_READ)
+        self.disc_tx = None
+        if discovery_bind and self.disc is not None:  # answer from our own address (the host takes the source IP as the sensor's)
+            self.disc_tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self.disc_tx.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            self.disc_tx.bind((ip, self.discovery_port))
+            self.disc_tx.setblocking(False)
+            self.sel.register(self.disc_tx, selectors.EVENT_READ)  # unicast discovery arrives here
         self.data = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.data.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4 << 20)
         self.data.bind((ip, self.point_port or 0))
@@ -135,7 +142,7 @@ class LivoxSimulator:
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(2.0)
-        for s in (self.cmd, self.disc, self.data):
+        for s in (self.cmd, self.disc, self.disc_tx, self.data):
             if s is not None:
                 s.close()
 
@@ -233,7 +240,13 @@ class LivoxSimulator:
             return
         if f.cmd_id == sdk2.DISCOVERY:
             ack = bytes([0, self.dev_type]) + b"SIM" + str(self.seed).encode()[:13].ljust(13, b"\0") + socket.inet_aton(self.ip) + struct.pack("<H", self.cmd_port)
-            sock.sendto(sdk2.pack_frame(sdk2.ACK, f.seq, sdk2.DISCOVERY, ack, sender=1), addr)
+            (self.disc_tx or sock).sendto(sdk2.pack_frame(sdk2.ACK, f.seq, sdk2.DISCOVERY, ack, sender=1), addr)
+        elif f.cmd_id == sdk2.GET_PARAMS and len(f.payload) >= 4:  # parameter query: key count u16, reserved u16, keys u16...
+            n = struct.unpack_from("<H", f.payload)[0]
+            keys = struct.unpack_from(f"<{n}H", f.payload, 4) if len(f.payload) >= 4 + 2 * n else ()
+            vals = {0x8000: f"SIM{self.seed:013d}".encode()[:16], 0x8010: b"\x01", 0x8006: bytes([sdk2.WORK_NORMAL if self.streaming else sdk2.WORK_SLEEP])}
+            items = b"".join(struct.pack("<HH", k, len(vals.get(k, b"\0"))) + vals.get(k, b"\0") for k in keys)
+            sock.sendto(sdk2.pack_frame(sdk2.ACK, f.seq, f.cmd_id, b"\x00" + struct.pack("<H", len(keys)) + items, sender=1), addr)
         elif f.cmd_id == sdk2.SET_PARAMS:
             kv = sdk2.parse_params(f.payload)
             if kv is None:
