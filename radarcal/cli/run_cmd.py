@@ -101,7 +101,7 @@ def run(
         dfile = DetectionsFile.read(det_path)
         detect = lambda f: dfile.lookup(f.t, f.name)
 
-    recorder = None
+    recorder = camera_health = None
     if rep is not None:
         frames = rep.camera_frames(need_pixels=detector is not None)
         cloud_src = rep.cloud_frames() if has_clouds else None
@@ -109,6 +109,7 @@ def run(
         from radarcal.runtime.replay import paced_video, start_recording
 
         frames = paced_video(video) if realtime_video else open_camera(video)
+        camera_health = getattr(frames, "snapshot", None)
         recorder = start_recording(record, b, cam_name, video, clouds) if record is not None else None
         cloud_src = None
         if has_clouds and any(c.partition("=")[2 if "=" in c.split("://")[0] else 0].startswith("livox") for c in clouds):
@@ -134,11 +135,17 @@ def run(
         link = SerialLink(serial, season=cfg.season, serial_factory=factory).start()
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     try:
-        extra = (lambda: health_text(cloud_src.health())) if hasattr(cloud_src, "health") else None
+        def sensors_health() -> dict:
+            h = dict(cloud_src.health()) if hasattr(cloud_src, "health") else {}
+            if camera_health is not None:
+                h[cam_name] = camera_health()
+            return h
+
+        extra = (lambda: health_text(sensors_health())) if hasattr(cloud_src, "health") or camera_health else None
         summary = run_loop(pipe, merge_by_time(frames, cloud_src, cloud_offset), detect, out, minimap, link, status=not quiet and not as_json,
                            max_frames=max_frames, on_frame=evaluator, status_extra=extra)  # fmt: skip
-        if hasattr(cloud_src, "health"):
-            summary["health"] = cloud_src.health()
+        if extra is not None:
+            summary["health"] = sensors_health()
     finally:
         if link is not None:
             link.close()
@@ -289,6 +296,12 @@ def health_text(health: dict[str, dict]) -> str:
     parts = []
     for name, h in health.items():
         age = h.get("last_seen_age_s")
+        if "rate_pts_s" not in h:  # a camera
+            if h["state"] != "streaming" or (age is not None and age > 0.5):
+                parts.append(f"{name} {h['state'].upper()} {'-' if age is None else f'{age:.1f}s'} reconn {h['reconnects']}")
+            elif h["reconnects"]:
+                parts.append(f"{name} ok reconn {h['reconnects']}")
+            continue
         if age is None or age > 1.0:
             parts.append(f"{name} SILENT {'-' if age is None else f'{age:.1f}s'} (ground-ray fallback)")
         else:

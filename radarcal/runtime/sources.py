@@ -176,7 +176,11 @@ def open_camera(spec: str, fps: float = 30.0) -> Iterator[CameraFrame]:
     p = Path(spec)
     if p.is_dir():
         return image_folder_frames(p, fps)
-    if p.is_file() or spec.isdigit() or "://" in spec:
+    if not p.is_file() and (spec.isdigit() or "://" in spec):
+        from radarcal.io.camera_live import LiveCamera
+
+        return LiveCamera(spec, name="camera")  # iterable; .snapshot() is its health
+    if p.is_file():
         return video_frames(spec)
     raise InputError(spec, "camera source not found (expected an image folder, a video file, a device index or a URL)")
 

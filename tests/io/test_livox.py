@@ -31,7 +31,7 @@ def _pair(model: str, **sim_kw):
     ip = f"127.0.{np.random.default_rng().integers(1, 250)}.{next(_ips)}"
     disc = _free_port() if model.startswith("mid7") else None
     sim = LivoxSimulator(model, ip=ip, host="127.0.0.1", discovery_port=disc, **sim_kw).start()
-    src = LivoxSource(ip, host="127.0.0.1", sensor="lidar0", discovery_port=disc).start()
+    src = LivoxSource(ip, host="127.0.0.1", sensor="lidar0", discovery_port=disc, timeout_s=1.0).start()
     return sim, src
 
 

@@ -98,7 +98,7 @@ POINT_TYPES: dict[int, tuple[list, int, int, str]] = {
     5: ([("theta", "<u2"), ("phi", "<u2"), ("depth", "<u4"), ("r", "u1"), ("tag", "u1"), ("depth2", "<u4"), ("r2", "u1"), ("tag2", "u1")], 48, 2, "sph2"),
     7: (_XYZ + [("r", "u1"), ("tag", "u1")], 90, 1, "cart"),  # triple return: 30 slots x 3 extended points
     8: ([("theta", "<u2"), ("phi", "<u2"), ("depth", "<u4"), ("r", "u1"), ("tag", "u1"), ("depth2", "<u4"), ("r2", "u1"), ("tag2", "u1"),
-         ("depth3", "<u4"), ("r3", "u1"), ("tag3", "u1")], 30, 3, "sph3"),  # fmt: skip
+         ("depth3", "<u4"), ("r3", "u1"), ("tag3", "u1")], 30, 3, "sph3"),
 }
 IMU_TYPE = 6
 HEADER_SIZE = np.dtype(HEADER).itemsize  # 18

@@ -156,7 +156,7 @@ def encode_packets(xyz_m: np.ndarray, reflectivity: np.ndarray, t0_ns: int, udp_
     out = np.zeros(k, packet_dtype(data_type, n))
     out["version"] = 0
     out["length"] = out.dtype.itemsize
-    out["time_interval"] = int(round(n * point_interval_ns / 100.0))
+    out["time_interval"] = round(n * point_interval_ns / 100.0)
     out["dot_num"] = n
     out["udp_cnt"] = (udp_cnt0 + np.arange(k)) & 0xFFFF
     out["data_type"] = data_type

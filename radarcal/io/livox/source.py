@@ -8,6 +8,7 @@ gives the same clouds.
 
 from __future__ import annotations
 
+import itertools
 import selectors
 import socket
 import struct
@@ -16,6 +17,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -80,7 +82,7 @@ class PacketDecoder:
         if sdk not in (1, 2):
             raise ValueError("sdk must be 1 or 2")
         self.sdk = sdk
-        self.frame_ns = int(round(frame_s * 1e9))
+        self.frame_ns = round(frame_s * 1e9)
         self.sensor = sensor
         self.health = health or LivoxHealth(sensor=sensor, sdk=sdk)
         self._queue: list[tuple[bytes, float]] = []
@@ -163,7 +165,7 @@ class PacketDecoder:
         return out
 
     def _decode_run(self, key: tuple, run: list[tuple[bytes, float]]) -> None:
-        dt, size, npp = key
+        dt, _, npp = key
         if self.sdk == 1:
             pk = np.frombuffer(b"".join(b for b, _ in run), sdk1.packet_dtype(dt))
             xyz, refl, keep = sdk1.decode_points(pk, dt)
@@ -197,7 +199,7 @@ class PacketDecoder:
         cuts = set(np.flatnonzero(~ok).tolist())
         bounds = sorted({0, len(pk), *cuts})
         pidx = np.repeat(np.arange(len(pk)), npp)[keep]
-        for a, b in zip(bounds[:-1], bounds[1:]):
+        for a, b in itertools.pairwise(bounds):
             if self._ts0 is None or a in cuts:
                 self._close()
                 self._open = None
@@ -289,7 +291,7 @@ class _Sdk1Discovery:
     """One socket per (address, port) receiving SDK 1 broadcasts, shared by every SDK 1 source of the process and
     dispatched by the sender's IP (several LiDARs broadcast to the same host port)."""
 
-    _shared: dict[tuple[str, int], _Sdk1Discovery] = {}
+    _shared: ClassVar[dict[tuple[str, int], _Sdk1Discovery]] = {}
     _lock = threading.Lock()
 
     def __init__(self, bind: tuple[str, int]):
@@ -343,7 +345,7 @@ class LivoxSource:
     ``packet_tap(sensor, kind, t, bytes)`` (optional) sees every raw datagram received (kind ``data`` / ``cmd``), for
     recordings. Ports default to the vendor's; tests and the simulator move them (``discovery_port``, ``cmd_port``)."""
 
-    def __init__(self, ip: str, sdk: int | None = None, host: str | None = None, sensor: str = "", frame_s: float = 0.1, timeout_s: float = 1.0,
+    def __init__(self, ip: str, sdk: int | None = None, host: str | None = None, sensor: str = "", frame_s: float = 0.1, timeout_s: float = 2.0,
                  discovery_port: int | None = None, cmd_port: int | None = None, data_type: int | None = None, max_clouds: int = 50,
                  listen_port: int | None = None, packet_tap: Callable | None = None):  # fmt: skip
         self.ip = ip
@@ -532,8 +534,8 @@ class LivoxSource:
         self._last_try = now
         if self.sdk in (None, 2):  # SDK 2 discovery, unicast to the sensor (never a network broadcast)
             try:
-                self._send2(sdk2.DISCOVERY, b"", (self.ip, self.discovery_port or sdk2.DISCOVERY_PORT) if self.sdk == 2 or self.discovery_port is None
-                            else (self.ip, sdk2.DISCOVERY_PORT))  # fmt: skip
+                # discovery_port names the sensor's port for SDK 2, the host's broadcast port for SDK 1
+                self._send2(sdk2.DISCOVERY, b"", (self.ip, self.discovery_port if self.sdk == 2 and self.discovery_port else sdk2.DISCOVERY_PORT))
             except OSError:
                 pass
         if st == "handshake":
