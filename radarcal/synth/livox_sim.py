@@ -73,7 +73,8 @@ class LivoxSimulator:
 
     def __init__(self, model: str = "mid70", ip: str = "127.0.0.1", host: str = "127.0.0.1", discovery_port: int | None = None, cmd_port: int | None = None,
                  rate: float | None = None, scene: str | Path | None = None, hz: float = 10.0, max_packets: int | None = None, broadcast_s: float = 0.2,
-                 hb_timeout_s: float = 3.0, seed: int = 0, t0_ns: int = 5_000_000_000, discovery_bind: str | None = None):  # fmt: skip
+                 hb_timeout_s: float = 3.0, seed: int = 0, t0_ns: int = 5_000_000_000, discovery_bind: str | None = None,
+                 T_sensor_scene: np.ndarray | None = None):  # fmt: skip
         if model not in MODELS:
             raise ValueError(f"unknown model {model!r} ({', '.join(MODELS)})")
         self.model = model
@@ -90,6 +91,7 @@ class LivoxSimulator:
         self.hb_timeout_s = hb_timeout_s
         self.seed = seed
         self.t0_ns = t0_ns
+        self.T_sensor_scene = None if T_sensor_scene is None else np.asarray(T_sensor_scene, float)  # scene points -> this sensor's frame
         self.scene_clouds = sorted(p for p in Path(scene, "clouds").iterdir() if p.suffix in (".pcd", ".npy", ".bin", ".ply")) if scene else None
         self._cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.packets_sent = self.points_sent = self.slots_sent = self.bad_sent = self.truncated_sent = 0
@@ -190,6 +192,9 @@ class LivoxSimulator:
 
     def _packets(self, k0: int, k1: int) -> list[bytes]:
         xyz, refl = self._points(k0, k1)
+        if self.T_sensor_scene is not None:
+            hit = np.any(xyz != 0, axis=1)
+            xyz[hit] = xyz[hit] @ self.T_sensor_scene[:3, :3].T + self.T_sensor_scene[:3, 3]
         t0 = int(self.t0_ns + round(k0 * self.step_ns))
         if self.sdk == 1:
             pk = sdk1.encode_packets(xyz, refl, t0, self.data_type)
