@@ -159,3 +159,23 @@ def test_live_run_with_record_matches_its_replays(sample, tmp_path, capsys):
     print(f"live vs replay: {same}/{len(a)} frames identical, labels equal in {labels_same}, position diff median {np.median(diffs):.3f} m, "
           f"p95 {np.percentile(diffs, 95):.3f} m, max {np.max(diffs):.3f} m")  # fmt: skip
     assert labels_same >= 0.95 * len(a) and np.median(diffs) < 0.02 and np.percentile(diffs, 95) < 0.3
+
+
+def test_bad_inputs_one_line_errors_and_nothing_written(tmp_path, capsys):
+    assert main(["record", str(tmp_path / "r")]) == 2 and "nothing to record" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+    assert main(["record", str(tmp_path / "r"), "--video", str(tmp_path / "missing.avi")]) == 2
+    assert "video file not found" in capsys.readouterr().err and not (tmp_path / "r").exists()
+    assert main(["record", str(tmp_path / "r"), "--clouds", "livox://127.0.0.1:56001"]) == 2
+    assert "starts the LiDAR itself" in capsys.readouterr().err
+    assert main(["record", str(tmp_path / "r"), "--clouds", "livox://not-an-ip"]) == 2
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "keep.txt").write_text("x")
+    assert main(["record", str(full), "--serial", "/dev/nonexistent-tty"]) == 2
+    assert "not empty" in capsys.readouterr().err and [p.name for p in full.iterdir()] == ["keep.txt"]
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "manifest.json").write_text('{"format": "radarcal-recording", "version": 99}')
+    assert main(["run", "--replay", str(rec), "--bundle", str(SAMPLE / "calib.yaml"), "--detections", str(SAMPLE / "detections.jsonl")]) == 2
+    assert "newer than this radarcal reads" in capsys.readouterr().err
