@@ -136,12 +136,12 @@ def run(
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     try:
         def sensors_health() -> dict:
-            h = dict(cloud_src.health()) if hasattr(cloud_src, "health") else {}
+            h = dict(cloud_src.sensors_health()) if hasattr(cloud_src, "sensors_health") else {}
             if camera_health is not None:
                 h[cam_name] = camera_health()
             return h
 
-        extra = (lambda: health_text(sensors_health())) if hasattr(cloud_src, "health") or camera_health else None
+        extra = (lambda: health_text(sensors_health())) if hasattr(cloud_src, "sensors_health") or camera_health else None
         summary = run_loop(pipe, merge_by_time(frames, cloud_src, cloud_offset), detect, out, minimap, link, status=not quiet and not as_json,
                            max_frames=max_frames, on_frame=evaluator, status_extra=extra)  # fmt: skip
         if extra is not None:

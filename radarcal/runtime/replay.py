@@ -39,7 +39,7 @@ class LiveClouds:
         for s in self.sources.values():
             s.close()
 
-    def health(self) -> dict[str, dict]:
+    def sensors_health(self) -> dict[str, dict]:
         return {n: s.snapshot() for n, s in self.sources.items()}
 
 
@@ -228,7 +228,7 @@ def tapped_serial(recorder):
 
 
 def finish_recording(recorder, cloud_src, serial: str | None) -> dict:
-    health = cloud_src.health() if hasattr(cloud_src, "health") else {}
+    health = cloud_src.sensors_health() if hasattr(cloud_src, "sensors_health") else {}
     for s in recorder.sensors:
         if s["kind"] == "lidar" and s["name"] in health:
             src = cloud_src.sources[s["name"]]

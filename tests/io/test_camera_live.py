@@ -105,7 +105,7 @@ def test_lidar_silent_for_5s_status_says_so_and_robots_use_the_ground_ray():
             res = pipe.process(clock.now(), "f", boxes)
             phase = "before" if outage_at is None else ("during" if time.monotonic() - outage_at < 5 else "after")
             sources.append((phase, [r.source for r in res.robots]))
-            texts.append((phase if phase != "during" or time.monotonic() - outage_at > 1.5 else "early", health_text(clouds.health())))
+            texts.append((phase if phase != "during" or time.monotonic() - outage_at > 1.5 else "early", health_text(clouds.sensors_health())))
             if outage_at is None and src.health.packets > 1500:
                 sim.outage(5.0)
                 outage_at = time.monotonic()

@@ -265,7 +265,7 @@ def test_two_lidars_sdk1_and_sdk2_merged_in_a_common_frame():
     try:
         got: dict[str, list] = {"lidar0": [], "lidar1": []}
         assert _wait(lambda: [got[c.sensor].append(c) for c in src.poll()] is not None and all(len(v) >= 6 for v in got.values()), 10.0)
-        h = src.health()
+        h = src.sensors_health()
         assert h["lidar0"]["sdk"] == 1 and h["lidar1"]["sdk"] == 2 and h["lidar0"]["drops"] == h["lidar1"]["drops"] == 0
     finally:
         src.close()
