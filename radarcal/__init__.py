@@ -8,7 +8,7 @@ Conventions (everywhere in the package):
 
 __version__ = "0.1.0"
 
-from radarcal.bundle import Bundle, load_bundle, save_bundle
-from radarcal.camera import Camera
+from radarcal.bundle import Bundle, load_bundle, save_bundle  # noqa: E402
+from radarcal.camera import Camera  # noqa: E402
 
-__all__ = ["Bundle", "Camera", "__version__", "load_bundle", "save_bundle"]
+__all__ = ["__version__", "Bundle", "Camera", "load_bundle", "save_bundle"]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["BOARD_KINDS", "DEFAULT_DICTIONARY", "BoardSpec", "object_points"]
+__all__ = ["BoardSpec", "object_points", "BOARD_KINDS", "DEFAULT_DICTIONARY"]
 
 BOARD_KINDS = ("chessboard", "charuco")
 DEFAULT_DICTIONARY = "DICT_4X4_1000"
@@ -140,7 +140,7 @@ class BoardSpec:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> BoardSpec:
+    def from_dict(cls, d: dict) -> "BoardSpec":
         """Inverse of :meth:`to_dict` (derived keys are ignored). Raises ``ValueError`` on a bad board."""
         charuco = d["type"] == "charuco"
         legacy = d.get("legacy") if charuco else None

@@ -28,12 +28,11 @@ import io as _io
 import os
 import shutil
 import tempfile
-from collections import deque
-from collections.abc import Iterable
-from dataclasses import dataclass, field
 from glob import escape as glob_escape
+from collections import deque
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 import yaml
@@ -44,20 +43,20 @@ from radarcal.errors import InputError, read_text
 from radarcal.plain import to_plain as _plain
 
 __all__ = [
-    "BACKUPS_KEPT",
-    "DEFAULT_RUNTIME",
     "SCHEMA_VERSION",
-    "Bundle",
-    "CameraEntry",
     "Provenance",
+    "CameraEntry",
     "TransformEntry",
-    "hash_inputs",
+    "Bundle",
     "load_bundle",
     "load_or_create_bundle",
-    "load_session",
-    "read_session_file",
     "save_bundle",
     "save_session",
+    "load_session",
+    "read_session_file",
+    "hash_inputs",
+    "DEFAULT_RUNTIME",
+    "BACKUPS_KEPT",
 ]
 
 BACKUPS_KEPT = 10  # timestamped backups kept next to a bundle; older ones are removed on save
@@ -98,7 +97,7 @@ class Provenance:
     """Who wrote an entry: the command line, when, which radarcal, and a hash of its inputs."""
 
     command: str
-    time: str = field(default_factory=lambda: _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
+    time: str = field(default_factory=lambda: _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
     radarcal_version: str = field(default_factory=_version)
     inputs_sha256: str = ""
 
@@ -106,7 +105,7 @@ class Provenance:
         return {"command": self.command, "time": self.time, "radarcal_version": self.radarcal_version, "inputs_sha256": self.inputs_sha256}
 
     @classmethod
-    def from_dict(cls, d: dict | None) -> Provenance:
+    def from_dict(cls, d: dict | None) -> "Provenance":
         d = d or {}
         return cls(command=str(d.get("command", "")), time=str(d.get("time", "")), radarcal_version=str(d.get("radarcal_version", "")), inputs_sha256=str(d.get("inputs_sha256", "")))
 
@@ -432,7 +431,7 @@ def _atomic_write(path: Path, data: bytes, keep_backup: bool = True) -> Path | N
             f.flush()
             os.fsync(f.fileno())
         if keep_backup and path.exists():
-            stamp = _dt.datetime.now(_dt.UTC).strftime("%Y%m%dT%H%M%S%fZ")
+            stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S%fZ")
             backup = path.with_name(f"{path.name}.{stamp}.bak")
             shutil.copy2(path, backup)
         os.replace(tmp, path)

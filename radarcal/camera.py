@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["FISHEYE_DIST_SIZE", "PINHOLE_DIST_SIZES", "Camera"]
+__all__ = ["Camera", "PINHOLE_DIST_SIZES", "FISHEYE_DIST_SIZE"]
 
 PINHOLE_DIST_SIZES = (4, 5, 8, 12)
 FISHEYE_DIST_SIZE = 4
@@ -93,7 +93,7 @@ class Camera:
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> Camera:
+    def from_dict(cls, d: dict) -> "Camera":
         return cls(image_size=tuple(d["image_size"]), K=np.asarray(d["K"], float), dist=np.asarray(d["dist"], float), model=d.get("model", "pinhole"))
 
     # --- distortion in normalised coordinates --------------------------------------------------------------------
@@ -299,7 +299,7 @@ class Camera:
                 & (uv[:, 1] <= h - 0.5 - margin)
             )
 
-    def scaled(self, factor: float) -> Camera:
+    def scaled(self, factor: float) -> "Camera":
         """The same lens at ``factor`` times the resolution (for pyramids/supersampling)."""
         K = self.K.copy()
         K[:2] *= factor

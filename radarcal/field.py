@@ -25,7 +25,7 @@ import numpy as np
 from radarcal.errors import InputError
 from radarcal.plain import to_plain as _plain
 
-__all__ = ["BUILTIN_FIELDS", "REQUIRED_LANDMARKS", "FieldModel", "builtin_field", "field_from_dict", "load_field"]
+__all__ = ["FieldModel", "load_field", "field_from_dict", "BUILTIN_FIELDS", "builtin_field", "REQUIRED_LANDMARKS"]
 
 REQUIRED_LANDMARKS = ("red_outpost", "blue_outpost", "red_base", "blue_base")
 
@@ -82,7 +82,7 @@ class FieldModel:
         return out
 
     @classmethod
-    def from_dict(cls, d: dict, source: Any = None) -> FieldModel:
+    def from_dict(cls, d: dict, source: Any = None) -> "FieldModel":
         return field_from_dict(d, source)
 
     # --- geometry --------------------------------------------------------------------------------------------

@@ -17,22 +17,22 @@ def _Rotation():
     return Rotation
 
 __all__ = [
-    "R_to_rotvec",
-    "R_to_rpy_deg",
-    "T_from_rotvec",
-    "T_from_xyz_rpy_deg",
-    "T_to_rotvec",
-    "T_to_xyz_rpy_deg",
-    "compose",
-    "invert_T",
-    "is_rotation",
     "make_T",
-    "perturb_T",
-    "pose_error",
-    "rotation_angle",
-    "rotvec_to_R",
-    "rpy_deg_to_R",
+    "invert_T",
+    "compose",
     "transform_points",
+    "rotvec_to_R",
+    "R_to_rotvec",
+    "T_from_rotvec",
+    "T_to_rotvec",
+    "rpy_deg_to_R",
+    "R_to_rpy_deg",
+    "T_from_xyz_rpy_deg",
+    "T_to_xyz_rpy_deg",
+    "is_rotation",
+    "rotation_angle",
+    "pose_error",
+    "perturb_T",
 ]
 
 

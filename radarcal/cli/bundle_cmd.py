@@ -8,13 +8,7 @@ import numpy as np
 import typer
 
 from radarcal import geometry
-from radarcal.bundle import (
-    Provenance,
-    hash_inputs,
-    load_bundle,
-    load_or_create_bundle,
-    save_bundle,
-)
+from radarcal.bundle import Provenance, hash_inputs, load_bundle, load_or_create_bundle, save_bundle
 from radarcal.cli.common import JsonOpt, command_line, emit
 from radarcal.errors import InputError
 from radarcal.io import export_camera, import_camera, read_transform

@@ -8,15 +8,14 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Callable
-from typing import Any
+from typing import Any, Callable
 
 import typer
 from rich.console import Console
 
 from radarcal.plain import to_plain
 
-__all__ = ["BundleOpt", "JsonOpt", "command_line", "emit", "err_console", "progress", "to_jsonable"]
+__all__ = ["err_console", "emit", "progress", "BundleOpt", "JsonOpt", "to_jsonable", "command_line"]
 
 # Progress bars and logs go to stderr so that --json output on stdout stays clean.
 err_console = Console(stderr=True)

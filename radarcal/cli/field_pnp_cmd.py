@@ -52,24 +52,12 @@ def field_pnp(
     as_json: bool = JsonOpt,
 ) -> None:
     """Solve the camera's pose on the field from clicked landmarks; write T_<camera>_field and an error map."""
-    from radarcal.bundle import (
-        Provenance,
-        hash_inputs,
-        load_bundle,
-        save_bundle,
-        save_session,
-    )
+    from radarcal.bundle import Provenance, hash_inputs, load_bundle, save_bundle, save_session
     from radarcal.field import field_from_dict, load_field
     from radarcal.io import read_image
     from radarcal.pnp.error_map import error_map
     from radarcal.pnp.field_pnp import FieldPnPError, PnPOptions, solve_field_pnp
-    from radarcal.pnp.picks import (
-        DEFAULT_PICKS,
-        has_display,
-        pick_landmarks,
-        read_picks,
-        write_picks,
-    )
+    from radarcal.pnp.picks import DEFAULT_PICKS, has_display, pick_landmarks, read_picks, write_picks
 
     if overlay is not None and image is None:
         raise InputError("--overlay", "needs --image (the overlay is drawn on it)")

@@ -11,29 +11,12 @@ import numpy as np
 import typer
 
 from radarcal.board import BoardSpec, object_points
-from radarcal.bundle import (
-    Provenance,
-    hash_inputs,
-    load_or_create_bundle,
-    save_bundle,
-    save_session,
-)
+from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
 from radarcal.cli.common import BundleOpt, JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
-from radarcal.intrinsics.collect import (
-    ViewInput,
-    decide_layout,
-    detect_files,
-    diagnose,
-    expand_sources,
-    sample_video,
-)
+from radarcal.intrinsics.collect import ViewInput, decide_layout, detect_files, diagnose, expand_sources, sample_video
 from radarcal.intrinsics.detect import normalise_order
-from radarcal.intrinsics.pipeline import (
-    IntrinsicsResult,
-    NotEnoughViews,
-    run_intrinsics,
-)
+from radarcal.intrinsics.pipeline import IntrinsicsResult, NotEnoughViews, run_intrinsics
 from radarcal.intrinsics.select import DESCRIPTOR_NAMES, TARGET_RANGES, view_descriptor
 from radarcal.intrinsics.solve import MODELS, SolveError
 from radarcal.intrinsics.stereo import StereoResult, pair_by_name, stereo_calibrate

@@ -9,13 +9,7 @@ import numpy as np
 import typer
 
 from radarcal import geometry
-from radarcal.bundle import (
-    Provenance,
-    hash_inputs,
-    load_or_create_bundle,
-    save_bundle,
-    save_session,
-)
+from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
 
@@ -145,21 +139,8 @@ def lidar_camera(
     # ---- targetless refinement
     converged = True
     if refine:
-        from radarcal.extrinsics.edges import (
-            SCAN_EDGE_KINDS,
-            crop_to_camera,
-            image_edges,
-            lidar_edges,
-            lidar_intensity_edges,
-            lidar_scan_edges,
-            merge_edges,
-        )
-        from radarcal.extrinsics.refine import (
-            PARAM_NAMES,
-            EdgeScene,
-            RefineOptions,
-            refine_edges,
-        )
+        from radarcal.extrinsics.edges import SCAN_EDGE_KINDS, crop_to_camera, image_edges, lidar_edges, lidar_intensity_edges, lidar_scan_edges, merge_edges
+        from radarcal.extrinsics.refine import PARAM_NAMES, EdgeScene, RefineOptions, refine_edges
 
         if refine_method not in ("matches", "dense"):
             raise InputError("--refine-method", f"expected 'matches' or 'dense', got {refine_method!r}")
@@ -276,18 +257,8 @@ def lidar_camera(
 def _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, arrays):
     """``--refine-method dense``: all pairs share one T; the sparse method's edge score is reported as the common
     yardstick (before / after)."""
-    from radarcal.extrinsics.dense import (
-        DenseOptions,
-        DenseScene,
-        image_energy,
-        refine_dense,
-    )
-    from radarcal.extrinsics.edges import (
-        crop_to_camera,
-        edge_score,
-        image_edges,
-        lidar_edges,
-    )
+    from radarcal.extrinsics.dense import DenseOptions, DenseScene, image_energy, refine_dense
+    from radarcal.extrinsics.edges import crop_to_camera, edge_score, image_edges, lidar_edges
 
     with err_console.status("dense refinement"):
         scenes, yard = [], []

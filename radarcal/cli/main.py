@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         click.echo("interrupted", err=True)
         return 130
-    except Exception as e:
+    except Exception as e:  # noqa: BLE001 - last line of defence: one line, no traceback
         if debug:
             raise
         click.echo(f"error: internal error: {e.__class__.__name__}: {e} (run with --debug for the traceback)", err=True)

@@ -8,21 +8,8 @@ import numpy as np
 import typer
 
 from radarcal import geometry
-from radarcal.bundle import (
-    Provenance,
-    hash_inputs,
-    load_or_create_bundle,
-    save_bundle,
-    save_session,
-)
-from radarcal.cli.common import (
-    BundleOpt,
-    JsonOpt,
-    command_line,
-    emit,
-    err_console,
-    progress,
-)
+from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
+from radarcal.cli.common import BundleOpt, JsonOpt, command_line, emit, err_console, progress
 from radarcal.errors import InputError
 
 
@@ -143,7 +130,7 @@ def radar_lidar(
     save_bundle(b, bundle)
 
     summary = {"bundle": str(bundle), "session": str(session), "main_lidar": main, "model": model, "scenes": len(scenes),
-               "reflectors_per_scene": {s.name: len(s.lidar_centres) for s in scenes}, "radar_frames": frames, "filter_counts": cal.filter_counts,
+               "reflectors_per_scene": {s.name: int(len(s.lidar_centres)) for s in scenes}, "radar_frames": frames, "filter_counts": cal.filter_counts,
                "radars": summary_radars, "lidars": summary_lidars, "joint": cal.joint, "quantisation": {k: v for k, v in cal.quantisation.items()}, "notes": notes,
                "ground": {"normal": cal.T_lidar_G[:3, 2], "lidar_height_m": float(cal.T_lidar_G[:3, 2] @ cal.T_lidar_G[:3, 3] * -1)}}
     emit(summary, as_json, _human)

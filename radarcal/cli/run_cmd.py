@@ -9,7 +9,7 @@ import typer
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
 
-__all__ = ["compute_hero_offset", "hero_offset", "run"]
+__all__ = ["run", "hero_offset", "compute_hero_offset"]
 
 
 def run(
@@ -46,13 +46,7 @@ def run(
     from radarcal.runtime.detector import DetectionsFile, OnnxDetector, read_class_names
     from radarcal.runtime.loop import OnlineEvaluator, Pipeline, RunConfig, pick_frames
     from radarcal.runtime.loop import run as run_loop
-    from radarcal.runtime.sources import (
-        merge_by_time,
-        open_camera,
-        open_clouds,
-        open_replay,
-        prefetch_frames,
-    )
+    from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, open_replay, prefetch_frames
 
     if (replay is None) == (video is None):
         raise InputError("radarcal run", "give exactly one of --replay DIR or --video SRC")
@@ -93,13 +87,13 @@ def run(
 
     if detector is not None:
         det = OnnxDetector(detector, read_class_names(names) if names else None, conf_thres=conf, threads=threads)
-        detect = lambda f: det(f.load())
+        detect = lambda f: det(f.load())  # noqa: E731
     else:
         det_path = detections or (rep.detections if rep else None)
         if det_path is None:
             raise InputError("radarcal run", "no detector: give --detector model.onnx or --detections FILE (or a replay with detections.jsonl)")
         dfile = DetectionsFile.read(det_path)
-        detect = lambda f: dfile.lookup(f.t, f.name)
+        detect = lambda f: dfile.lookup(f.t, f.name)  # noqa: E731
 
     recorder = camera_health = None
     if rep is not None:

@@ -56,12 +56,7 @@ def synth_board(
 ) -> None:
     """Render a calibration-target image set with known camera, poses and corner pixels."""
     from radarcal.board import BoardSpec
-    from radarcal.synth.board import (
-        RenderSettings,
-        default_camera,
-        default_stereo_camera,
-        write_board_set,
-    )
+    from radarcal.synth.board import RenderSettings, default_camera, default_stereo_camera, write_board_set
 
     if board not in ("chessboard", "charuco"):
         raise InputError("--board", f"expected chessboard or charuco, got {board!r}")

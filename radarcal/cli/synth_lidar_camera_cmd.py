@@ -29,11 +29,7 @@ def synth_lidar_camera(
     as_json: bool = JsonOpt,
 ) -> None:
     """Generate a structured scene seen by a Livox-like LiDAR and a distorted 1280x1024 camera, with known T_cam_lidar."""
-    from radarcal.synth.lidar_camera import (
-        LidarCameraSceneParams,
-        render_lidar_camera_scene,
-        write_lidar_camera_scene,
-    )
+    from radarcal.synth.lidar_camera import LidarCameraSceneParams, render_lidar_camera_scene, write_lidar_camera_scene
 
     if lidar not in ("rosette", "spinning"):
         raise InputError("--lidar", f"expected 'rosette' or 'spinning', got {lidar!r}")
@@ -45,7 +41,7 @@ def synth_lidar_camera(
                                                                  boards=boards, init_deg=init_deg, init_m=init_m, supersample=supersample))
         paths = write_lidar_camera_scene(scene, out, command=command_line())
     xyz_rpy = geometry.T_to_xyz_rpy_deg(scene.T_cam_lidar)
-    summary = {"out": str(out), "files": {k: str(v) for k, v in paths.items()}, "n_points": len(scene.points), "T_cam_lidar": scene.T_cam_lidar,
+    summary = {"out": str(out), "files": {k: str(v) for k, v in paths.items()}, "n_points": int(len(scene.points)), "T_cam_lidar": scene.T_cam_lidar,
                "init_error_deg_m": list(geometry.pose_error(scene.T_init, scene.T_cam_lidar)), "boards_visible": int(sum(b["visible"] for b in scene.boards)),
                "seconds": time.perf_counter() - t0}
 

@@ -27,14 +27,7 @@ def synth_radar(
     as_json: bool = JsonOpt,
 ) -> None:
     """Vehicle with a front LiDAR, left/middle/right 2D radars and corner reflectors on tripods."""
-    from radarcal.synth.radar import (
-        RadarRigSpec,
-        RadarSceneSpec,
-        _default_extra_lidars,
-        _default_radars,
-        generate_radar_session,
-        write_radar_session,
-    )
+    from radarcal.synth.radar import RadarRigSpec, RadarSceneSpec, _default_extra_lidars, _default_radars, generate_radar_session, write_radar_session
 
     try:
         hs = [float(v) for v in heights.split(",")]

@@ -33,7 +33,7 @@ import numpy as np
 from radarcal import geometry
 from radarcal.camera import Camera
 
-__all__ = ["DenseEdgePoints", "DenseOptions", "DenseResult", "DenseScene", "ImageEnergy", "dense_score", "image_energy", "refine_dense", "view_depth_edges"]
+__all__ = ["DenseEdgePoints", "ImageEnergy", "DenseScene", "DenseOptions", "DenseResult", "view_depth_edges", "image_energy", "dense_score", "refine_dense"]
 
 
 @dataclass

@@ -26,20 +26,8 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = [
-    "SCAN_EDGE_KINDS",
-    "ImageEdges",
-    "LidarEdges",
-    "crop_to_camera",
-    "edge_score",
-    "image_edges",
-    "lidar_depth_edges",
-    "lidar_edges",
-    "lidar_intensity_edges",
-    "lidar_scan_edges",
-    "lidar_scan_intensity_edges",
-    "merge_edges",
-]
+__all__ = ["LidarEdges", "ImageEdges", "lidar_edges", "lidar_depth_edges", "lidar_intensity_edges", "lidar_scan_intensity_edges", "lidar_scan_edges",
+           "SCAN_EDGE_KINDS", "merge_edges", "image_edges", "edge_score", "crop_to_camera"]
 
 
 @dataclass
@@ -223,7 +211,7 @@ def _edges_one_grid(P, tree, voxel, shift, min_points, max_plane_rms, angle_rang
     x1, _ = tree.query(q - 1.5 * support * uu1, k=1, distance_upper_bound=r)
     x2, _ = tree.query(q - 1.5 * support * uu2, k=1, distance_upper_bound=r)
     good = np.isfinite(s1) & np.isfinite(s2) & np.isfinite(s0) & ~np.isfinite(x1) & ~np.isfinite(x2)
-    return q[good], d[pair][good], len(pk), len(np.unique(pair[good]))
+    return q[good], d[pair][good], len(pk), int(len(np.unique(pair[good])))
 
 
 def _refit_away_from(P, order, start, cnt, vox, c, n, c_other, n_other, inlier_m, exclusion_m):

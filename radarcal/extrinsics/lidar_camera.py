@@ -26,14 +26,14 @@ from radarcal import geometry
 from radarcal.camera import Camera
 
 __all__ = [
-    "BoardInCloud",
     "CornerSolution",
+    "BoardInCloud",
+    "solve_corners",
     "detect_boards_in_cloud",
     "detect_chessboards_in_image",
     "pair_boards",
-    "pose_sigma",
     "ransac_plane",
-    "solve_corners",
+    "pose_sigma",
 ]
 
 
@@ -292,7 +292,7 @@ def detect_boards_in_cloud(points: np.ndarray, board_size_m: tuple[float, float]
         corners2, size_fit = _fit_rectangle(xy, (w, h))
         corners3 = c0 + corners2[:, :1] * u + corners2[:, 1:] * v
         rms = float(np.sqrt(np.mean((Ci2 @ n + d) ** 2)))
-        found.append(BoardInCloud(corners3, c0, n, len(xy), rms, size_fit, idx_in))
+        found.append(BoardInCloud(corners3, c0, n, int(len(xy)), rms, size_fit, idx_in))
         if len(found) >= max_boards:
             break
     return found

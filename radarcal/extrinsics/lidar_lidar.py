@@ -13,7 +13,7 @@ import numpy as np
 
 from radarcal import geometry
 
-__all__ = ["LidarRegistration", "ground_prealign", "overlap_metrics", "register_lidar"]
+__all__ = ["LidarRegistration", "register_lidar", "overlap_metrics", "ground_prealign"]
 
 
 @dataclass

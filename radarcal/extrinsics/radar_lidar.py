@@ -26,8 +26,8 @@ ground, x = LiDAR x projected onto the ground). A 2D radar is level at ``mount_h
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -37,34 +37,34 @@ from scipy.spatial import cKDTree
 from radarcal import geometry
 
 __all__ = [
-    "FilterResult",
-    "Fit2D",
-    "GroundPlane",
+    "rot2",
     "Pose2",
-    "RadarResult",
-    "ReflectorExtraction",
-    "RigCalibration",
-    "SceneObs",
-    "aggregate_frames",
-    "board_reflector_centres",
-    "build_scene_obs",
-    "calibrate_rig",
-    "deslant",
-    "extract_reflectors",
-    "filter_detections",
-    "fit_ground_plane",
-    "fit_rigid_2d",
-    "leave_one_out",
-    "mutual_nn",
-    "pose2_to_T",
+    "Fit2D",
     "procrustes_2d",
+    "slant_predict",
+    "deslant",
+    "fit_rigid_2d",
     "procrustes_floor",
-    "quantisation_report",
-    "reject_outliers",
+    "mutual_nn",
     "robust_match_2d",
     "robust_match_sets",
-    "rot2",
-    "slant_predict",
+    "GroundPlane",
+    "fit_ground_plane",
+    "ReflectorExtraction",
+    "extract_reflectors",
+    "board_reflector_centres",
+    "FilterResult",
+    "filter_detections",
+    "aggregate_frames",
+    "quantisation_report",
+    "leave_one_out",
+    "reject_outliers",
+    "SceneObs",
+    "RadarResult",
+    "RigCalibration",
+    "calibrate_rig",
+    "pose2_to_T",
+    "build_scene_obs",
 ]
 
 
@@ -90,11 +90,11 @@ class Pose2:
     def apply(self, p: np.ndarray) -> np.ndarray:
         return np.asarray(p, float) @ rot2(self.theta).T + self.t
 
-    def inverse(self) -> Pose2:
+    def inverse(self) -> "Pose2":
         R = rot2(self.theta)
         return Pose2(-self.theta, -R.T @ self.t)
 
-    def compose(self, other: Pose2) -> Pose2:
+    def compose(self, other: "Pose2") -> "Pose2":
         """``self @ other`` (apply ``other`` first)."""
         return Pose2(float(_wrap(self.theta + other.theta)), rot2(self.theta) @ other.t + self.t)
 
@@ -102,7 +102,7 @@ class Pose2:
         return np.array([self.theta, self.t[0], self.t[1]])
 
     @classmethod
-    def from_T(cls, T: np.ndarray) -> Pose2:
+    def from_T(cls, T: np.ndarray) -> "Pose2":
         """Yaw and xy of a 4x4 (its out-of-plane part is dropped)."""
         T = np.asarray(T, float)
         return cls(float(np.arctan2(T[1, 0], T[0, 0])), T[:2, 3].copy())
@@ -596,7 +596,7 @@ class FilterResult:
     cluster_radars: np.ndarray  # (K,) number of distinct radars in the cluster
 
     def counts(self) -> dict:
-        return {"A": len(self.A), "B": len(self.B), "C": len(self.C)}
+        return {"A": int(len(self.A)), "B": int(len(self.B)), "C": int(len(self.C))}
 
 
 def filter_detections(points_ref: Sequence[np.ndarray], forward: tuple[float, float] = (0.0, 5.0), lateral: tuple[float, float] = (-5.0, 5.0),

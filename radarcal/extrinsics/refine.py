@@ -25,18 +25,8 @@ from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.extrinsics.edges import ImageEdges, LidarEdges, edge_score
 
-__all__ = [
-    "PARAM_NAMES",
-    "EdgeScene",
-    "RefineOptions",
-    "RefineResult",
-    "block_bootstrap_sigma",
-    "coarse_rotation_search",
-    "cost_profiles",
-    "match_edges",
-    "parameter_profiles",
-    "refine_edges",
-]
+__all__ = ["EdgeScene", "RefineOptions", "RefineResult", "refine_edges", "coarse_rotation_search", "match_edges", "block_bootstrap_sigma",
+           "cost_profiles", "parameter_profiles", "PARAM_NAMES"]
 
 PARAM_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
 

@@ -10,27 +10,22 @@ from __future__ import annotations
 
 import glob
 import os
-from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Callable, Iterable
 
 import cv2
 import numpy as np
 
 from radarcal.board import BoardSpec
 from radarcal.errors import InputError
-from radarcal.intrinsics.detect import (
-    Detection,
-    choose_charuco_layout,
-    detect_board,
-    diagnose_board_size,
-)
-from radarcal.intrinsics.select import novel_mask, view_descriptor
 from radarcal.io.images import read_image
+from radarcal.intrinsics.detect import Detection, choose_charuco_layout, detect_board, diagnose_board_size
+from radarcal.intrinsics.select import novel_mask, view_descriptor
 
-__all__ = ["IMAGE_EXTS", "VIDEO_EXTS", "ViewInput", "decide_layout", "detect_files", "diagnose", "expand_sources", "sample_video"]
+__all__ = ["ViewInput", "IMAGE_EXTS", "VIDEO_EXTS", "expand_sources", "detect_files", "sample_video", "decide_layout", "diagnose"]
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 VIDEO_EXTS = {".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg"}
@@ -64,7 +59,7 @@ def expand_sources(sources: Iterable[str]) -> tuple[list[Path], list[Path]]:
         for q in found:
             (videos if q.suffix.lower() in VIDEO_EXTS else images).append(q)
     seen = set()
-    uniq = lambda xs: [x for x in xs if not (str(x.resolve()) in seen or seen.add(str(x.resolve())))]
+    uniq = lambda xs: [x for x in xs if not (str(x.resolve()) in seen or seen.add(str(x.resolve())))]  # noqa: E731
     return uniq(images), uniq(videos)
 
 

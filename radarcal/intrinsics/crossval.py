@@ -18,14 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radarcal.intrinsics._blas import single_thread_blas
-from radarcal.intrinsics.solve import (
-    Calibration,
-    SolveError,
-    calibrate,
-    projection_uncertainty,
-)
+from radarcal.intrinsics.solve import Calibration, SolveError, calibrate, projection_uncertainty
 
-__all__ = ["CrossValidation", "ModelChoice", "choose_model", "cross_validate", "projection_difference", "split_halves"]
+__all__ = ["CrossValidation", "ModelChoice", "split_halves", "projection_difference", "cross_validate", "choose_model"]
 
 _COMPLEXITY = {"pinhole5": 0, "fisheye": 1, "pinhole8": 2}
 

@@ -21,25 +21,22 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from radarcal.board import (  # the one board model; re-exported under the old path
-    BoardSpec,
-    object_points,
-)
+from radarcal.board import BoardSpec, object_points  # the one board model; re-exported under the old path
 
 __all__ = [
     "BoardSpec",
     "Detection",
-    "choose_charuco_layout",
+    "object_points",
     "detect_board",
-    "detect_charuco",
     "detect_chessboard",
-    "diagnose_board_size",
+    "detect_charuco",
+    "refine_corners",
+    "neighbour_gaps",
     "edge_width_px",
     "grid_directions",
-    "neighbour_gaps",
+    "diagnose_board_size",
+    "choose_charuco_layout",
     "normalise_order",
-    "object_points",
-    "refine_corners",
 ]
 
 

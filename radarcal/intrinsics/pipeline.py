@@ -9,22 +9,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radarcal.board import BoardSpec, object_points
-from radarcal.intrinsics.crossval import (
-    CrossValidation,
-    ModelChoice,
-    choose_model,
-    cross_validate,
-)
+from radarcal.intrinsics.crossval import CrossValidation, ModelChoice, choose_model, cross_validate
 from radarcal.intrinsics.detect import Detection
 from radarcal.intrinsics.select import Coverage, coverage, novel_mask, view_descriptor
-from radarcal.intrinsics.solve import (
-    MODELS,
-    Calibration,
-    SolveError,
-    UncertaintyMap,
-    calibrate,
-    projection_uncertainty,
-)
+from radarcal.intrinsics.solve import MODELS, Calibration, SolveError, UncertaintyMap, calibrate, projection_uncertainty
 
 __all__ = ["IntrinsicsResult", "NotEnoughViews", "run_intrinsics", "screen_views"]
 

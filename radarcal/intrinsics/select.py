@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DESCRIPTOR_NAMES", "TARGET_RANGES", "Coverage", "coverage", "novel_mask", "view_descriptor"]
+__all__ = ["Coverage", "view_descriptor", "novel_mask", "coverage", "DESCRIPTOR_NAMES", "TARGET_RANGES"]
 
 DESCRIPTOR_NAMES = ("X", "Y", "Size", "Skew")
 TARGET_RANGES = np.array([0.7, 0.7, 0.4, 0.5])

@@ -9,10 +9,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from radarcal.board import BoardSpec, object_points
 from radarcal.camera import Camera
+from radarcal.board import BoardSpec, object_points
 
-__all__ = ["SimulatedViews", "radar_station_camera", "simulate_good_practice_views", "simulate_views"]
+__all__ = ["SimulatedViews", "simulate_views", "simulate_good_practice_views", "radar_station_camera"]
 
 
 @dataclass

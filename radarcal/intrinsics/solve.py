@@ -27,14 +27,14 @@ from radarcal.intrinsics._blas import single_thread_blas
 __all__ = [
     "MODELS",
     "Calibration",
-    "SolveError",
     "UncertaintyMap",
-    "board_pose",
+    "SolveError",
     "calibrate",
-    "param_names",
-    "projection_uncertainty",
-    "residuals",
     "solve_once",
+    "residuals",
+    "projection_uncertainty",
+    "param_names",
+    "board_pose",
 ]
 
 MODELS = ("pinhole5", "pinhole8", "fisheye")

@@ -25,7 +25,7 @@ from radarcal.camera import Camera
 from radarcal.intrinsics._blas import single_thread_blas
 from radarcal.intrinsics.solve import _camera, _theta, board_pose, param_names
 
-__all__ = ["StereoResult", "pair_by_name", "stereo_calibrate"]
+__all__ = ["StereoResult", "stereo_calibrate", "pair_by_name"]
 
 
 @dataclass

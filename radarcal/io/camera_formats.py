@@ -13,7 +13,7 @@ import yaml
 from radarcal.camera import Camera
 from radarcal.errors import InputError, read_text
 
-__all__ = ["EXPORT_FORMATS", "detect_camera_format", "export_camera", "import_camera"]
+__all__ = ["import_camera", "export_camera", "detect_camera_format", "EXPORT_FORMATS"]
 
 EXPORT_FORMATS = ("ros", "opencv", "kalibr", "json")
 
@@ -197,9 +197,8 @@ def export_camera(cam: Camera, fmt: str, name: str = "cam0") -> str:
         }
         return yaml.safe_dump(d, sort_keys=False, default_flow_style=None, width=200)
     if fmt == "opencv":
-        import tempfile
-
         import cv2
+        import tempfile
 
         with tempfile.TemporaryDirectory() as tmp:
             p = os.path.join(tmp, "cam.yaml")

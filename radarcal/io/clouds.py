@@ -14,7 +14,7 @@ import numpy as np
 
 from radarcal.errors import InputError
 
-__all__ = ["CLOUD_SUFFIXES", "Cloud", "read_cloud", "write_pcd"]
+__all__ = ["Cloud", "read_cloud", "write_pcd", "CLOUD_SUFFIXES"]
 
 CLOUD_SUFFIXES = (".pcd", ".ply", ".bin", ".npy")
 

@@ -12,7 +12,7 @@ import numpy as np
 from radarcal import geometry
 from radarcal.errors import InputError, read_text
 
-__all__ = ["parse_transform_text", "read_transform"]
+__all__ = ["read_transform", "parse_transform_text"]
 
 
 def parse_transform_text(text: str, source: object = "") -> np.ndarray:

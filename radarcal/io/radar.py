@@ -33,18 +33,18 @@ from radarcal import geometry
 from radarcal.errors import InputError, read_text
 
 __all__ = [
-    "Ars408Objects",
     "RadarDetections",
-    "RadarSessionInput",
-    "RigConfig",
-    "SessionScene",
-    "is_ars408_csv",
-    "read_ars408_csv",
     "read_radar_csv",
-    "read_radar_session",
-    "read_rig_yaml",
-    "read_tudelft_accumulator",
+    "Ars408Objects",
+    "read_ars408_csv",
+    "is_ars408_csv",
     "read_tudelft_example",
+    "read_tudelft_accumulator",
+    "RigConfig",
+    "read_rig_yaml",
+    "SessionScene",
+    "RadarSessionInput",
+    "read_radar_session",
 ]
 
 
@@ -156,7 +156,7 @@ def read_ars408_csv(path: str | os.PathLike) -> Ars408Objects:
     cols = {h: data[:, j] for j, h in enumerate(header)}
     tid = cols["track_id"].astype(int)
     scan = np.cumsum(np.r_[0, (np.diff(tid) < 0) | (tid[1:] == 0)]) if len(tid) else np.zeros(0, int)
-    g = lambda k: cols.get(k, np.full(len(tid), np.nan))
+    g = lambda k: cols.get(k, np.full(len(tid), np.nan))  # noqa: E731
     return Ars408Objects(cols, np.stack([cols["position_x"], cols["position_y"]], axis=1), g("rcs"), np.stack([g("velocity_x"), g("velocity_y")], axis=1), tid, scan, fixed, str(path))
 
 

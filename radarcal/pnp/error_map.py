@@ -23,15 +23,9 @@ import numpy as np
 from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.field import FieldModel
-from radarcal.pnp.field_pnp import (
-    FieldPnPError,
-    PnPOptions,
-    params_to_pose,
-    pose_to_params,
-    solve_field_pnp,
-)
+from radarcal.pnp.field_pnp import FieldPnPError, PnPOptions, params_to_pose, pose_to_params, solve_field_pnp
 
-__all__ = ["ErrorMap", "MonteCarloResult", "error_map", "ground_visible", "localisation_sigma", "localise_ground", "localise_lidar", "monte_carlo"]
+__all__ = ["ErrorMap", "error_map", "ground_visible", "localise_lidar", "localise_ground", "localisation_sigma", "monte_carlo", "MonteCarloResult"]
 
 
 @dataclass

@@ -31,7 +31,7 @@ import numpy as np
 from radarcal import geometry
 from radarcal.camera import Camera
 
-__all__ = ["FieldPnPError", "FieldPnPResult", "PnPOptions", "params_to_pose", "pose_to_params", "reprojection_jacobian", "solve_field_pnp"]
+__all__ = ["FieldPnPError", "FieldPnPResult", "PnPOptions", "solve_field_pnp", "pose_to_params", "params_to_pose", "reprojection_jacobian"]
 
 
 class FieldPnPError(ValueError):

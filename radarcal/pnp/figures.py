@@ -9,15 +9,13 @@ import numpy as np
 from radarcal.field import FieldModel
 from radarcal.pnp.error_map import ErrorMap
 
-__all__ = ["draw_overlay", "save_error_map_png"]
+__all__ = ["save_error_map_png", "draw_overlay"]
 
 
 def save_error_map_png(path: str | os.PathLike, em: ErrorMap, field_model: FieldModel, camera_position: np.ndarray | None = None, landmarks: list[str] | None = None, title: str = "") -> None:
     """Two panels (LiDAR depth, ground-ray fallback): 1σ horizontal error (m) over the field, raised areas,
     the landmarks used and the camera position."""
-    from matplotlib.figure import (
-        Figure,  # no pyplot: works headless and leaves the GUI backend alone
-    )
+    from matplotlib.figure import Figure  # no pyplot: works headless and leaves the GUI backend alone
 
     L, W = field_model.size
     step = em.xs[1] - em.xs[0] if len(em.xs) > 1 else 1.0

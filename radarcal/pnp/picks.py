@@ -10,7 +10,7 @@ import numpy as np
 
 from radarcal.errors import InputError
 
-__all__ = ["DEFAULT_PICKS", "has_display", "pick_landmarks", "read_picks", "write_picks"]
+__all__ = ["read_picks", "write_picks", "has_display", "pick_landmarks", "DEFAULT_PICKS"]
 
 # Four landmarks per side that spread over the image of a station at its own end, at different depths and heights
 # (not coplanar, so the 4-point pose is unique): see docs/field.md.

@@ -7,7 +7,7 @@ import io
 
 import numpy as np
 
-__all__ = ["auto_arrow_scale", "figure_to_png", "image_extent", "new_figure", "show", "show_image"]
+__all__ = ["new_figure", "figure_to_png", "auto_arrow_scale", "image_extent", "show_image", "show"]
 
 
 def new_figure(width_in: float = 7.0, height_in: float = 4.5, nrows: int = 1, ncols: int = 1, **subplot_kw):

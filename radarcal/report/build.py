@@ -16,10 +16,9 @@ import json
 import math
 import os
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -31,7 +30,7 @@ from radarcal.report import intrinsics as ri
 from radarcal.report import lidar_camera as rl
 from radarcal.report.html import Section, Table
 
-__all__ = ["FieldData", "IntrinsicsData", "LidarCameraData", "ReportContent", "build_report", "discover_sessions", "field_data", "field_drawing_args", "intrinsics_data", "lidar_camera_data", "read_tracks"]
+__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data"]
 
 
 @dataclass

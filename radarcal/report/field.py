@@ -7,20 +7,20 @@ so these figures work with any field model object.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
 from radarcal.report._common import auto_arrow_scale, new_figure, show_image
 
 __all__ = [
-    "camera_position_on_field",
     "draw_field",
-    "error_over_time_figure",
     "field_landmarks_figure",
+    "picks_residual_figure",
     "localisation_error_figure",
     "minimap_tracks_figure",
-    "picks_residual_figure",
+    "error_over_time_figure",
+    "camera_position_on_field",
 ]
 
 

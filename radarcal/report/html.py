@@ -6,13 +6,12 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 import html as _html
-from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Sequence
 
 from radarcal.report._common import figure_to_png
 
-__all__ = ["Section", "Table", "inline_pngs", "png_data_uri", "render_html"]
+__all__ = ["Table", "Section", "render_html", "png_data_uri", "inline_pngs"]
 
 
 @dataclass
@@ -32,7 +31,7 @@ class Section:
     title: str
     items: list = field(default_factory=list)
 
-    def add(self, item: Any, caption: str = "") -> Section:
+    def add(self, item: Any, caption: str = "") -> "Section":
         self.items.append((item, caption) if caption else item)
         return self
 
@@ -88,7 +87,7 @@ def _anchor(i: int) -> str:
 
 def render_html(title: str, sections: Sequence[Section], subtitle: str = "", dpi: int = 96) -> str:
     """The whole report as one HTML string (UTF-8)."""
-    now = _dt.datetime.now(_dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     sub = _html.escape(subtitle + (" · " if subtitle else "") + f"generated {now}")
     nav = "".join(f'<a href="#{_anchor(i)}">{_html.escape(s.title)}</a>' for i, s in enumerate(sections))
     parts = []

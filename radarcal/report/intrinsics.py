@@ -7,32 +7,27 @@ projected (px). Every figure function has a pure numeric helper next to it (``co
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from typing import Sequence
 
 import numpy as np
 
 from radarcal.camera import Camera
-from radarcal.report._common import (
-    auto_arrow_scale,
-    image_extent,
-    new_figure,
-    show_image,
-)
+from radarcal.report._common import auto_arrow_scale, image_extent, new_figure, show_image
 
 __all__ = [
-    "coverage_figure",
+    "per_view_error_figure",
+    "residual_vectors_figure",
+    "residual_histogram_figure",
     "coverage_grid",
-    "crossval_difference_figure",
+    "coverage_figure",
+    "valid_region",
+    "uncertainty_map_figure",
     "distortion_displacement",
     "distortion_figure",
-    "format_value_sigma",
-    "parameter_table_figure",
-    "per_view_error_figure",
     "projection_difference",
-    "residual_histogram_figure",
-    "residual_vectors_figure",
-    "uncertainty_map_figure",
-    "valid_region",
+    "crossval_difference_figure",
+    "parameter_table_figure",
+    "format_value_sigma",
 ]
 
 

@@ -5,27 +5,23 @@ Projection is :meth:`radarcal.camera.Camera.project_from` (the one projection of
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from typing import Sequence
 
 import numpy as np
 
 from radarcal.camera import Camera
-from radarcal.extrinsics.refine import (
-    PARAM_NAMES,  # one definition of the pose parameters (re-exported)
-)
-from radarcal.extrinsics.refine import (
-    parameter_profiles as cost_profiles,  # the one profile evaluator (re-exported)
-)
+from radarcal.extrinsics.refine import PARAM_NAMES  # one definition of the pose parameters (re-exported)
+from radarcal.extrinsics.refine import parameter_profiles as cost_profiles  # the one profile evaluator (re-exported)
 from radarcal.report._common import new_figure, show_image
 
 __all__ = [
     "PARAM_NAMES",
+    "project_cloud",
     "cloud_overlay_figure",
-    "cost_profile_figure",
-    "cost_profiles",
     "edge_matches_figure",
     "edge_residual_histogram_figure",
-    "project_cloud",
+    "cost_profiles",
+    "cost_profile_figure",
 ]
 
 
@@ -134,7 +130,7 @@ def cost_profile_figure(offsets: np.ndarray, costs: np.ndarray, names: Sequence[
     scale = np.ones(P) if display_scale is None else np.asarray(display_scale, float)
     if units is None:
         units = ["deg", "deg", "deg", "m", "m", "m"] if P == 6 and display_scale is not None else [""] * P
-    ncols = min(P, 3)
+    ncols = 3 if P > 3 else P
     nrows = int(np.ceil(P / ncols))
     fig, axes = new_figure(3.2 * ncols, 2.5 * nrows + 0.5, nrows, ncols)
     axes = np.atleast_1d(axes).ravel()

@@ -18,7 +18,7 @@ import numpy as np
 
 from radarcal.errors import InputError
 
-__all__ = ["Detection", "DetectionsFile", "OnnxDetector", "decode_yolov5", "letterbox", "nms", "read_class_names"]
+__all__ = ["Detection", "letterbox", "decode_yolov5", "nms", "OnnxDetector", "DetectionsFile", "read_class_names"]
 
 
 @dataclass
@@ -206,7 +206,7 @@ class DetectionsFile:
     tol: float = 0.02
 
     @classmethod
-    def read(cls, path: str | os.PathLike, tol: float = 0.02) -> DetectionsFile:
+    def read(cls, path: str | os.PathLike, tol: float = 0.02) -> "DetectionsFile":
         path = Path(path)
         if not path.is_file():
             raise InputError(path, "detections file not found")

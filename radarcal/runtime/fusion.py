@@ -21,7 +21,7 @@ import numpy as np
 from radarcal.camera import Camera
 from radarcal.geometry import transform_points
 
-__all__ = ["BoxDepth", "CloudQueue", "DepthImage", "SurfaceFilter", "make_depth_image", "robust_depth"]
+__all__ = ["DepthImage", "BoxDepth", "make_depth_image", "robust_depth", "CloudQueue", "SurfaceFilter"]
 
 
 @dataclass

@@ -11,9 +11,9 @@ from __future__ import annotations
 import json
 import sys
 import time
-from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Iterable
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from radarcal.runtime.fusion import CloudQueue, SurfaceFilter
 from radarcal.runtime.localise import Localiser
 from radarcal.runtime.tracks import TrackManager
 
-__all__ = ["FrameResult", "Minimap", "OnlineEvaluator", "Pipeline", "RobotOut", "RunConfig", "StageTimer", "evaluate_tracks", "limit_blas_threads", "pick_frames", "run"]
+__all__ = ["RunConfig", "RobotOut", "FrameResult", "Pipeline", "Minimap", "StageTimer", "run", "pick_frames", "evaluate_tracks", "OnlineEvaluator", "limit_blas_threads"]
 
 STAGES = ("cloud", "detect", "depth", "localise", "track", "output")
 
@@ -50,7 +50,7 @@ class RunConfig:
     surface_min_height_m: float = 0.08
 
     @classmethod
-    def from_bundle(cls, bundle: Bundle, **overrides) -> RunConfig:
+    def from_bundle(cls, bundle: Bundle, **overrides) -> "RunConfig":
         rt = bundle.runtime or {}
         cfg = cls(
             season=int(rt.get("referee_season", 2024)),

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 from radarcal.runtime import referee as rp
 
-__all__ = ["LinkStats", "RateLimiter", "SerialLink", "referee_limits"]
+__all__ = ["RateLimiter", "referee_limits", "LinkStats", "SerialLink"]
 
 
 def referee_limits(season: int) -> dict[int, float]:
@@ -105,7 +105,7 @@ class SerialLink:
         with self._lock:
             return len(self._mail)
 
-    def start(self) -> SerialLink:
+    def start(self) -> "SerialLink":
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"referee-{self.port}", daemon=True)
         self._thread.start()
@@ -117,7 +117,7 @@ class SerialLink:
             self._thread.join(timeout)
         self._close_port()
 
-    def __enter__(self) -> SerialLink:
+    def __enter__(self) -> "SerialLink":
         return self.start()
 
     def __exit__(self, *exc) -> None:

@@ -17,9 +17,9 @@ import json
 import os
 import re
 import threading
-from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -28,21 +28,21 @@ from radarcal.io import read_cloud, read_image
 from radarcal.io.clouds import CLOUD_SUFFIXES
 
 __all__ = [
-    "IMAGE_SUFFIXES",
-    "SKIPPED",
     "CameraFrame",
     "CloudFrame",
-    "Replay",
-    "bag_clouds",
-    "cloud_folder",
-    "decode_pointcloud2",
     "image_folder_frames",
-    "merge_by_time",
+    "video_frames",
+    "cloud_folder",
+    "bag_clouds",
+    "decode_pointcloud2",
+    "Replay",
+    "open_replay",
     "open_camera",
     "open_clouds",
-    "open_replay",
+    "merge_by_time",
     "prefetch_frames",
-    "video_frames",
+    "IMAGE_SUFFIXES",
+    "SKIPPED",
 ]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")

@@ -14,7 +14,7 @@ import os
 
 import numpy as np
 
-__all__ = ["count_macs", "make_fixed_boxes_model", "make_yolov5n_like"]
+__all__ = ["make_fixed_boxes_model", "make_yolov5n_like", "count_macs"]
 
 
 def _names_meta(model, names):

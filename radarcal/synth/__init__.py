@@ -9,8 +9,8 @@ from radarcal.synth.board import (
     board_object_points,
     board_truth_pixels,
     default_camera,
-    load_board_truth,
     render_board,
+    load_board_truth,
     write_board_set,
 )
 
@@ -21,7 +21,7 @@ __all__ = [
     "board_object_points",
     "board_truth_pixels",
     "default_camera",
-    "load_board_truth",
     "render_board",
+    "load_board_truth",
     "write_board_set",
 ]

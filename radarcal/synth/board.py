@@ -30,24 +30,24 @@ from radarcal.camera import Camera
 from radarcal.geometry import invert_T, rotvec_to_R
 
 __all__ = [
-    "TRUTH_FORMAT",
-    "BoardRenderer",
     "BoardSpec",
-    "BoardTruth",
-    "BoardView",
     "RenderSettings",
-    "bad_view_amplitude",
+    "BoardRenderer",
+    "BoardView",
     "board_object_points",
-    "board_truth_pixels",
-    "bow_warp",
     "default_camera",
     "default_stereo_camera",
-    "load_board_truth",
+    "bow_warp",
+    "bad_view_amplitude",
     "plan_views",
-    "render_blank",
     "render_board",
-    "video_trajectory",
+    "render_blank",
+    "board_truth_pixels",
     "write_board_set",
+    "video_trajectory",
+    "load_board_truth",
+    "BoardTruth",
+    "TRUTH_FORMAT",
 ]
 
 TRUTH_FORMAT = "radarcal-synth-board/1"
@@ -278,7 +278,7 @@ def _ray_grid(camera: Camera, fisheye_fov_deg: float) -> _RayGrid:
     return _RayGrid(rays, drays_du, drays_dv, good, lens)
 
 
-def bow_warp(spec: BoardSpec, amplitude: float) -> callable:
+def bow_warp(spec: BoardSpec, amplitude: float) -> "callable":
     """A printed-pattern defect for an outlier view: the pattern bows along y by ``amplitude`` metres.
 
     Returns ``d(X, Y) -> (dX, dY)``: the pattern point printed (nominally) at ``(X, Y)`` appears at

@@ -11,9 +11,9 @@ is the only function that touches files. Deterministic for a given seed.
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -23,25 +23,25 @@ from radarcal.field import FieldModel
 from radarcal.synth.lidar_patterns import livox_rosette_dirs
 
 __all__ = [
-    "ROBOT_TYPES",
     "FieldSceneConfig",
     "Rig",
     "RobotSpec",
     "SceneBoxes",
-    "box_corners",
     "default_rig",
-    "image_box",
-    "livox_rosette_dirs",
     "make_robots",
-    "object_kinds",
-    "object_names",
-    "raycast",
-    "render_background",
-    "render_frame",
     "robot_states",
     "scene_boxes",
+    "raycast",
+    "object_names",
+    "object_kinds",
+    "livox_rosette_dirs",
     "simulate_lidar",
+    "box_corners",
+    "image_box",
+    "render_background",
+    "render_frame",
     "write_field_replay",
+    "ROBOT_TYPES",
 ]
 
 # RoboMaster robot ids: 1 hero, 2 engineer, 3/4/5 infantry, 7 sentry. (length, width, height) of the box, metres.

@@ -29,14 +29,14 @@ from radarcal.camera import Camera
 from radarcal.synth.lidar_patterns import livox_rosette_dirs, spinning_directions
 
 __all__ = [
-    "MOUNT_R_CAM_LIDAR",
-    "LidarCameraScene",
     "LidarCameraSceneParams",
-    "default_T_cam_lidar",
+    "LidarCameraScene",
     "default_camera",
-    "render_lidar_camera_scene",
+    "default_T_cam_lidar",
+    "MOUNT_R_CAM_LIDAR",
     "rosette_directions",
     "spinning_directions",
+    "render_lidar_camera_scene",
     "write_lidar_camera_scene",
 ]
 
@@ -383,7 +383,7 @@ def write_lidar_camera_scene(scene: LidarCameraScene, out_dir: str | Path, comma
         "camera": scene.camera.to_dict(),
         "objects": scene.objects,
         "boards": [{"id": b["id"], "corners_lidar": np.asarray(b["corners_lidar"]).tolist(), "corners_uv": np.asarray(b["corners_uv"]).tolist(), "visible": b["visible"], "size_m": list(b["size_m"])} for b in scene.boards],
-        "n_points": len(scene.points),
+        "n_points": int(len(scene.points)),
         "params": scene.params,
         "files": {k: v.name for k, v in paths.items()},
         "notes": "T_cam_lidar maps LiDAR points into the camera (p_cam = T @ p_lidar). ids.npz: point_ids per cloud point, cam_visible (not occluded from the camera) and id_image per pixel (0 = sky/nothing) refer to objects[].id.",

@@ -28,7 +28,7 @@ import yaml
 
 from radarcal import geometry
 
-__all__ = ["RadarRigSpec", "RadarSceneSpec", "RadarSession", "generate_radar_session", "reflector_offset", "trihedral_points", "write_radar_session"]
+__all__ = ["RadarRigSpec", "RadarSceneSpec", "RadarSession", "generate_radar_session", "write_radar_session", "trihedral_points", "reflector_offset"]
 
 
 def _default_radars() -> dict:

@@ -7,8 +7,9 @@ import time
 import numpy as np
 import pytest
 
+import radarcal.io.clouds as clouds
 from radarcal.errors import InputError
-from radarcal.io import clouds, read_cloud, write_pcd
+from radarcal.io import read_cloud, write_pcd
 
 o3d = pytest.importorskip("open3d", reason="open3d is needed to write reference clouds")
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from radarcal.io import clouds, read_cloud, write_pcd
+import radarcal.io.clouds as clouds
+from radarcal.io import read_cloud, write_pcd
 
 o3d = pytest.importorskip("open3d", reason="open3d is needed to write reference clouds")
 

@@ -7,14 +7,7 @@ import pytest
 
 from radarcal.errors import InputError
 from radarcal.extrinsics.radar_lidar import quantisation_report
-from radarcal.io.radar import (
-    read_ars408_csv,
-    read_radar_csv,
-    read_radar_session,
-    read_rig_yaml,
-    read_tudelft_accumulator,
-    read_tudelft_example,
-)
+from radarcal.io.radar import read_ars408_csv, read_radar_csv, read_radar_session, read_rig_yaml, read_tudelft_accumulator, read_tudelft_example
 
 
 def test_session_csv_header_comments_optional_columns(tmp_path):

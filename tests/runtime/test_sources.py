@@ -10,16 +10,8 @@ import pytest
 
 from radarcal.errors import InputError
 from radarcal.io import write_pcd
-from radarcal.runtime.sources import (
-    LIVOX_CUSTOM_MSG,
-    LIVOX_CUSTOM_POINT,
-    CloudFrame,
-    bag_clouds,
-    cloud_folder,
-    image_folder_frames,  # fmt: skip
-    merge_by_time,
-    open_clouds,
-)
+from radarcal.runtime.sources import (LIVOX_CUSTOM_MSG, LIVOX_CUSTOM_POINT, CloudFrame, bag_clouds, cloud_folder, image_folder_frames,
+                                      merge_by_time, open_clouds)  # fmt: skip
 
 
 def _typestore(store, pkg):
