@@ -10,7 +10,7 @@ address in work mode "normal" and pushes a state message once a second.
 
 Faults on request: :meth:`LivoxSimulator.outage` (silent for S seconds: no answers, no data, then a fresh sensor that
 must be started again), :meth:`inject` malformed or truncated packets. The scene is a walled room scanned with the
-Livox rosette (default) or the clouds of a replay folder (``radarcal synth field``), one cloud per 1/hz of sensor
+Livox rosette (default; 2 s of it, repeated) or the clouds of a replay folder (``radarcal synth field``), one cloud per 1/hz of sensor
 time. Everything binds to the loopback address given (127.x.y.z) and sends only to the host address given.
 """
 
@@ -190,7 +190,8 @@ class LivoxSimulator:
             self._cache = {i: (c.points.astype(np.float64), c.intensity if c.intensity is not None else np.full(len(c), 100.0))}
         return self._cache[i]
 
-    def _packets(self, k0: int, k1: int) -> list[bytes]:
+    def _encode(self, k0: int, k1: int) -> np.ndarray:
+        """Packets k0..k1-1 with their sensor times and counters."""
         xyz, refl = self._points(k0, k1)
         if self.T_sensor_scene is not None:
             hit = np.any(xyz != 0, axis=1)
@@ -202,6 +203,22 @@ class LivoxSimulator:
         else:
             pk = sdk2.encode_packets(xyz, refl, t0, udp_cnt0=k0, point_interval_ns=1e9 / self.rate, data_type=self.data_type, n=self.npp)
             pk["timestamp"] = self.t0_ns + np.round((k0 + np.arange(len(pk))) * self.step_ns).astype(np.uint64)
+        return pk
+
+    POOL_S = 2.0  # the room scene repeats every 2 s of packets (the rosette's points are computed once)
+
+    def _packets(self, k0: int, k1: int) -> list[bytes]:
+        if self.scene_clouds is None:  # static room: scan 2 s once, then resend it with new times and counters
+            n_pool = max(1, int(round(self.POOL_S * self.rate / self.npp)))
+            if getattr(self, "_pool", None) is None:
+                self._pool = self._encode(0, n_pool)
+            k = np.arange(k0, k1)
+            pk = self._pool[k % n_pool]
+            pk["timestamp"] = self.t0_ns + np.round(k * self.step_ns).astype(np.uint64)
+            if self.sdk == 2:
+                pk["udp_cnt"] = k & 0xFFFF
+        else:
+            pk = self._encode(k0, k1)
         slots = pk["pts"].reshape(len(pk), -1)
         nz = np.any(np.stack([slots["x"], slots["y"], slots["z"]], -1) != 0, axis=-1).sum(axis=1)
         raw = pk.tobytes()

@@ -523,13 +523,15 @@ class LivoxSource:
         if st == "listening":
             return
         if st == "streaming":
-            if now - self._last_alive > self.timeout_s:
+            # SDK 2 sensors prove they are alive by data or their 1 Hz state push: allow three pushes when idle
+            limit = self.timeout_s if self.sdk == 1 else max(self.timeout_s, 3.0)
+            if now - self._last_alive > limit:
                 self._lost()
             elif self.sdk == 1 and now - self._last_hb >= 0.8 * min(1.0, self.timeout_s):
                 self._last_hb = now
                 self._send1(sdk1.HEARTBEAT)
             return
-        if now - self._last_try < 0.5:
+        if now - self._last_try < (1.5 if st == "handshake" else 0.5):  # an answer may be late on a busy host
             return
         self._last_try = now
         if self.sdk in (None, 2):  # SDK 2 discovery, unicast to the sensor (never a network broadcast)
