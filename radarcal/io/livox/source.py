@@ -287,6 +287,16 @@ def parse_livox_url(spec: str) -> dict:
     return opts
 
 
+def _big_receive_buffer(sock: socket.socket, size: int = 64 << 20) -> None:
+    """A kernel receive buffer that rides out a stalled reader (64 MB ~ 10 s of HAP packets): SO_RCVBUFFORCE when
+    allowed (root / CAP_NET_ADMIN), else SO_RCVBUF, which the kernel caps at net.core.rmem_max (raise it with
+    ``sysctl -w net.core.rmem_max=67108864`` on the station)."""
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, getattr(socket, "SO_RCVBUFFORCE", 33), size)
+    except OSError:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+
+
 class _Sdk1Discovery:
     """One socket per (address, port) receiving SDK 1 broadcasts, shared by every SDK 1 source of the process and
     dispatched by the sender's IP (several LiDARs broadcast to the same host port)."""
@@ -382,7 +392,7 @@ class LivoxSource:
         what = f"livox://{self.ip}"
         try:
             self.data_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            self.data_sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 8 << 20)
+            _big_receive_buffer(self.data_sock)
             if self.listen_port is not None:
                 self.data_sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
                 self.data_sock.bind((self.ip, self.listen_port))
