@@ -16,9 +16,9 @@ __all__ = ["run", "hero_offset", "compute_hero_offset"]
 
 def run(
     bundle: ReplayBundleOpt = None,
-    replay: Path = typer.Option(None, "--replay", help="Replay folder (images/, clouds/, detections.jsonl) as written by `radarcal synth field`."),
+    replay: Path = typer.Option(None, "--replay", help="A recording (`radarcal record`) or a replay folder (images/, clouds/, detections.jsonl) as written by `radarcal synth field`."),
     video: str = typer.Option(None, "--video", help="Camera: video file, image folder, device index or URL."),
-    clouds: str = typer.Option(None, "--clouds", help="LiDAR: folder of PCD/npy/bin, ROS1/ROS2 bag, or livox://HOST:PORT (Livox SDK1 UDP)."),
+    clouds: list[str] = typer.Option(None, "--clouds", help="LiDAR: folder of PCD/npy/bin, ROS1/ROS2 bag, or a live Livox [NAME=]livox://IP (livox1:// SDK 1, livox2:// SDK 2; repeat for several LiDARs, merged in the frame of --lidar)."),
     cloud_topic: CloudTopicOpt = None,
     cloud_offset: str = typer.Option("0", "--cloud-time-offset", help="Camera clock minus LiDAR clock, seconds (t_camera = t_cloud + offset; 0: one clock, e.g. a replay "
                                      "or a bag with both topics), or 'first': the first cloud pairs with the first frame."),
@@ -35,7 +35,7 @@ def run(
     conf: float = typer.Option(0.25, "--conf", help="Detector confidence threshold."),
     threads: int = typer.Option(0, "--threads", help="onnxruntime intra-op threads per model (0 = its default)."),
     detections: Path = typer.Option(None, "--detections", help="Precomputed detections (JSON lines, one per frame)."),
-    serial: str = typer.Option(None, "--serial", help="Referee serial port, e.g. /dev/ttyUSB0 (115200 8N1)."),
+    serial: str = typer.Option(None, "--serial", help="Referee serial port, e.g. /dev/ttyUSB0 (115200 8N1); replaying a recording also 'pty' (a new pseudo-terminal) or 'dry-run' (default)."),
     out: Path = typer.Option(None, "--out", help="Per-frame JSON lines (robots in field coordinates)."),
     minimap: Path = typer.Option(None, "--minimap", help="Minimap output: .png (last frame + trails) or .mp4."),
     camera: str = typer.Option(None, "--camera", help="Camera name in the bundle (default: the only one)."),
@@ -44,6 +44,8 @@ def run(
     season: int = typer.Option(None, "--season", help="Referee protocol season (0x0305 layout, rate limits); default bundle runtime.referee_season."),
     sentry_xy: str = typer.Option(None, "--sentry-xy", help="Our sentry's field position X,Y (m) when it is not tracked."),
     max_frames: int = typer.Option(None, "--max-frames", help="Stop after this many frames."),
+    record: Path = typer.Option(None, "--record", help="Live run: also record every input (LiDAR packets, camera frames, serial bytes) into this new folder (replay: --replay)."),
+    realtime_video: bool = typer.Option(False, "--realtime-video", help="Play a --video file at its frame rate with receive times, as a live camera (station tests)."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Ignore clouds (ground-ray localisation only)."),
     localise: str = typer.Option("auto", "--localise", help="auto (LiDAR tracks + box fallback) | lidar (LiDAR tracks only) | box (box depth, the 2022 way)."),
     no_camera: bool = typer.Option(False, "--no-camera", help="Ignore detections: LiDAR only (every track unlabelled)."),
@@ -56,18 +58,31 @@ def run(
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
     from radarcal.bundle import load_bundle
     from radarcal.runtime.detector import DetectionsFile
+    from radarcal.io.recording import is_recording
     from radarcal.runtime.loop import OnlineEvaluator, Pipeline, RunConfig, pick_frames
     from radarcal.runtime.loop import run as run_loop
     from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, open_replay, prefetch_frames
     from radarcal.runtime.loop import cloud_frames_as_pairs
 
-    lidar_only = no_camera or (replay is None and video is None and clouds is not None)
-    if replay is not None and video is not None or (replay is None and video is None and clouds is None):
+    clouds = list(clouds or [])
+    lidar_only = no_camera or (replay is None and video is None and bool(clouds))
+    if replay is not None and video is not None or (replay is None and video is None and not clouds):
         raise InputError("radarcal run", "give exactly one of --replay DIR or --video SRC (or --clouds SRC alone: LiDAR only)")
     if localise not in ("auto", "lidar", "box"):
         raise InputError("--localise", f"expected auto, lidar or box, got {localise!r}")
     if lidar_only and (no_lidar or localise == "box"):
         raise InputError("--no-camera", "LiDAR-only needs the clouds and --localise auto or lidar")
+    if replay is not None and is_recording(replay):
+        from radarcal.cli.run_recording import run_recording
+
+        return run_recording(replay, bundle=bundle, speed=speed or 0.0, detector=detector, names=names, conf=conf, threads=threads, detections=detections, serial=serial,
+                             out=out, minimap=minimap, camera=camera, lidar=lidar, team=team, season=season, max_frames=max_frames, no_lidar=no_lidar,
+                             quiet=quiet, as_json=as_json, sentry_xy=sentry_xy)  # fmt: skip
+    if record is not None and replay is not None:
+        raise InputError("--record", "records live inputs: not with --replay")
+    live_multi = len(clouds) > 1
+    if live_multi and not all("://" in c for c in clouds):
+        raise InputError("--clouds", "several --clouds are for live LiDARs (NAME=livox://IP ...)")
     if detector is not None and detections is not None:
         raise InputError("radarcal run", "give at most one of --detector and --detections")
     if team is not None and team not in ("red", "blue"):
@@ -79,7 +94,7 @@ def run(
             raise InputError("--bundle", "required (the replay has no calib.yaml)")
         bundle = rep.bundle
     b = load_bundle(bundle)
-    has_clouds = not no_lidar and ((rep is not None and bool(rep.clouds)) or clouds is not None)
+    has_clouds = not no_lidar and ((rep is not None and bool(rep.clouds)) or bool(clouds))
     cam_name, lidar_name = pick_frames(b, camera or (rep.meta.get("camera") if rep else None), lidar or (rep.meta.get("lidar") if rep and has_clouds else None), has_clouds)
     sxy = None
     if sentry_xy:
@@ -125,25 +140,43 @@ def run(
         dfile = DetectionsFile.read(det_path)
         detect = lambda f: dfile.lookup(f.t, f.name)  # noqa: E731
 
+    recorder = camera_health = None
     if rep is not None:
         frames = rep.camera_frames(need_pixels=detector is not None and not lidar_only)
         cloud_src = rep.cloud_frames() if has_clouds else None
     elif video is None:  # --clouds alone: one frame per cloud
-        cloud_src = open_clouds(clouds, cloud_topic)
+        cloud_src = open_clouds(clouds[0], cloud_topic)
         frames = None
     else:
-        frames = open_camera(video)
-        cloud_src = open_clouds(clouds, cloud_topic) if has_clouds else None
+        from radarcal.runtime.replay import paced_video, start_recording
+
+        frames = paced_video(video) if realtime_video else open_camera(video)
+        camera_health = getattr(frames, "snapshot", None)
+        recorder = start_recording(record, b, cam_name, video, clouds) if record is not None else None
+        cloud_src = None
+        if has_clouds and any(c.partition("=")[2 if "=" in c.split("://")[0] else 0].startswith("livox") for c in clouds):
+            cloud_src = live_lidars(b, clouds, lidar_name, tap=recorder.lidar if recorder else None)
+        elif has_clouds:
+            cloud_src = open_clouds(clouds[0], cloud_topic)
     if detector is not None and frames is not None and not lidar_only:  # the pixels are needed: decode them ahead in a thread (live sources: newest frame only)
         live = video is not None and (video.isdigit() or "://" in video)
         frames = prefetch_frames(frames, latest_only=live)
         if detect_ahead:
             frames = detect.frames(frames)
+    if rep is None and recorder is not None:
+        from radarcal.runtime.replay import recorded
+
+        frames = recorded(frames, recorder, cam_name)
     link = None
     if serial:
         from radarcal.runtime.serial_link import SerialLink
 
-        link = SerialLink(serial, season=cfg.season).start()
+        factory = None
+        if rep is None and recorder is not None:
+            from radarcal.runtime.replay import tapped_serial
+
+            factory = tapped_serial(recorder)
+        link = SerialLink(serial, season=cfg.season, serial_factory=factory).start()
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     pairs = merge_by_time(frames, cloud_src, offset) if frames is not None else cloud_frames_as_pairs(cloud_src, offset if isinstance(offset, float) else 0.0)
     on_frame, console = evaluator, None
@@ -158,7 +191,16 @@ def run(
                 if callable(src):
                     console.add_health(name, src)
     try:
-        summary = run_loop(pipe, pairs, detect, out, minimap, link, status=not quiet and not as_json, max_frames=max_frames, on_frame=on_frame)
+        def sensors_health() -> dict:
+            h = dict(cloud_src.sensors_health()) if hasattr(cloud_src, "sensors_health") else {}
+            if camera_health is not None:
+                h[cam_name] = camera_health()
+            return h
+
+        extra = (lambda: health_text(sensors_health())) if hasattr(cloud_src, "sensors_health") or camera_health else None
+        summary = run_loop(pipe, pairs, detect, out, minimap, link, status=not quiet and not as_json, max_frames=max_frames, on_frame=on_frame, status_extra=extra)
+        if extra is not None:
+            summary["health"] = sensors_health()
     finally:
         if console is not None:
             console.server.close()
@@ -168,7 +210,13 @@ def run(
             frames.close()  # OpenCV or onnxruntime at interpreter exit aborted the process: exit 134 after --max-frames)
         if cloud_src is not None and hasattr(cloud_src, "close"):
             cloud_src.close()
+        if recorder is not None:
+            from radarcal.runtime.replay import finish_recording
+
+            rec_manifest = finish_recording(recorder, cloud_src, serial)
     summary.pop("results")
+    if recorder is not None:
+        summary["recording"] = {"out": str(record), "streams": rec_manifest["streams"], "dropped_camera_frames": rec_manifest["dropped_camera_frames"]}
     skipped = getattr(cloud_src, "skipped", None)
     summary["skipped_inputs"] = skipped.total if skipped is not None else 0
     summary["skipped_by_reason"] = dict(skipped.counts) if skipped is not None else {}
@@ -350,3 +398,47 @@ def _hero_range_from_recording(b, replay: Path, team: str) -> tuple[float, dict]
     r = np.asarray(ranges)
     return float(np.median(r)), {"frames_with_hero": len(r), "measured_spread_m": float(np.percentile(r, 90) - np.percentile(r, 10))}
 
+
+def live_lidars(b, specs: list[str], primary: str | None, tap=None):
+    """Start every live LiDAR (``[NAME=]livox://IP``); clouds move into the frame of ``primary`` through the bundle."""
+    from radarcal.cli.record_cmd import split_named
+    from radarcal.io.livox import open_livox
+    from radarcal.runtime.replay import LiveClouds
+
+    sources, T = {}, {}
+    try:
+        for i, spec in enumerate(specs):
+            name, url = split_named(spec, primary if i == 0 and primary else f"lidar{i}")
+            if primary and name != primary:
+                if not b.has_T(primary, name):
+                    raise InputError(b.path, f"no extrinsic between {primary!r} and {name!r} (T_{primary}_{name}) for the second LiDAR")
+                T[name] = b.T(primary, name)
+            sources[name] = open_livox(url, sensor=name, packet_tap=tap)
+    except Exception:
+        for s in sources.values():
+            s.close()
+        raise
+    return LiveClouds(sources, T)
+
+
+def health_text(health: dict[str, dict]) -> str:
+    """Status-line part of the sensors' health: rate, silence (ground-ray fallback), drops, reconnects."""
+    parts = []
+    for name, h in health.items():
+        age = h.get("last_seen_age_s")
+        if "rate_pts_s" not in h:  # a camera
+            if h["state"] != "streaming" or (age is not None and age > 0.5):
+                parts.append(f"{name} {h['state'].upper()} {'-' if age is None else f'{age:.1f}s'} reconn {h['reconnects']}")
+            elif h["reconnects"]:
+                parts.append(f"{name} ok reconn {h['reconnects']}")
+            continue
+        if age is None or age > 1.0:
+            parts.append(f"{name} SILENT {'-' if age is None else f'{age:.1f}s'} (ground-ray fallback)")
+        else:
+            parts.append(f"{name} {h['rate_pts_s'] / 1000:.0f}k pts/s")
+        if h.get("drops") or h.get("reconnects") or h.get("bad_packets") or h.get("truncated_packets"):
+            parts[-1] += f" drops {h['drops']} reconn {h['reconnects']} bad {h['bad_packets'] + h['truncated_packets']}"
+    return (" | " + " | ".join(parts)) if parts else ""
+
+
+_ = err_console  # stderr console kept for symmetry with other commands

@@ -72,11 +72,14 @@ def limit_blas_threads(n: int = 1):
 
 
 def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = None, minimap_path: Path | None = None, link=None,
-        status: bool = True, max_frames: int | None = None, keep_results: bool = False, on_frame: Callable | None = None) -> dict:  # fmt: skip
+        status: bool = True, max_frames: int | None = None, keep_results: bool = False, on_frame: Callable | None = None,
+        status_extra: Callable[[], str] | None = None, write_latency: bool = True) -> dict:  # fmt: skip
     """Run the loop over ``pairs`` (camera frame, new clouds). ``detect(frame) -> list[Detection]``.
 
     Writes one JSON line per frame to ``out_path``; the minimap to ``minimap_path`` (.png: last frame with whole
-    trails; .mp4/.avi: a video at the camera rate); sends referee frames through ``link``. Returns a summary."""
+    trails; .mp4/.avi: a video at the camera rate); sends referee frames through ``link``. ``status_extra()`` adds
+    sensor health to the status line; ``write_latency=False`` leaves the wall-clock latencies out of the JSON lines
+    (replays of a recording: byte-identical output). Returns a summary."""
     import cv2
 
     timer = StageTimer()
@@ -117,7 +120,7 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             tic = time.perf_counter()
             d = res.to_dict()
             if out_f:
-                out_f.write(json.dumps(d, separators=(",", ":")) + "\n")
+                out_f.write(json.dumps(d if write_latency else {k: v for k, v in d.items() if k != "latency_ms"}, separators=(",", ":")) + "\n")
             if mm is not None:
                 if minimap_path.suffix.lower() in (".mp4", ".avi", ".mkv"):
                     img = mm.draw(res)
@@ -160,6 +163,8 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
                     s = link.snapshot()
                     ser = f" | serial {'ok' if s['connected'] else 'DOWN'} tx {s['sent']} rx {s['received']}"
                 line = f"frame {n:6d} t={res.t:8.2f}s | {timer.fps():5.1f} FPS | ms: {stages} | robots {len(res.robots)} {srcs}{ser}"
+                if status_extra is not None:
+                    line += status_extra()
                 sys.stderr.write(("\r" + line + "\x1b[K") if tty else line + "\n")
                 sys.stderr.flush()
             if max_frames is not None and n >= max_frames:
