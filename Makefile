@@ -6,7 +6,7 @@ STAMP := $(VENV)/.radarcal-installed
 export MPLBACKEND := Agg
 export PIP_DISABLE_PIP_VERSION_CHECK := 1
 
-.PHONY: demo test test-slow bench install sysdeps clean notebooks
+.PHONY: demo test test-slow lint bench install sysdeps clean notebooks
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -24,12 +24,22 @@ sysdeps:
 	    echo "installing libusb-1.0-0 (needed by open3d)"; \
 	    apt-get install -y -qq libusb-1.0-0 >/dev/null 2>&1 || { apt-get update -qq >/dev/null && apt-get install -y -qq libusb-1.0-0 >/dev/null; }; \
 	  else echo "warning: libusb-1.0 is missing; open3d will not import (apt-get install libusb-1.0-0)"; fi; }
+	@# the browser tests of the operator pages (radarcal run --ui, field-pnp --ui) drive Debian's headless Chromium
+	@{ command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1; } || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing chromium chromium-driver (browser tests of the console pages)"; \
+	    apt-get install -y -qq chromium chromium-driver >/dev/null 2>&1 || { apt-get update -qq >/dev/null && apt-get install -y -qq chromium chromium-driver >/dev/null; } \
+	      || echo "warning: could not install chromium chromium-driver; the browser tests will skip"; \
+	  else echo "warning: chromium/chromedriver missing; the browser tests will skip (apt-get install chromium chromium-driver)"; fi; }
 
 demo: $(STAMP) sysdeps
 	$(PY) -m radarcal.demo
 
 test: $(STAMP) sysdeps
 	$(PY) -m pytest -q
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
 
 test-slow: $(STAMP) sysdeps
 	$(PY) -m pytest -q -m slow

@@ -196,7 +196,7 @@ def _bad_view_sim(seeds=range(100, 105)) -> list[str]:
     import cv2
 
     from radarcal.board import BoardSpec
-    from radarcal.intrinsics.simulate import radar_station_camera, simulate_views
+    from radarcal.synth.intrinsics_views import radar_station_camera, simulate_views
     from radarcal.intrinsics.solve import calibrate
 
     board = BoardSpec("chessboard", 14, 10, 0.03)

@@ -111,7 +111,6 @@ def timing() -> None:
 
 
 def _opencalib_camera(folder: Path):
-    from radarcal.camera import Camera
 
     d = json.loads((folder / "center_camera-intrinsic.json").read_text())["center_camera-intrinsic"]["param"]
     K = np.array(d["cam_K"]["data"], float)

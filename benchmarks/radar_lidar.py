@@ -17,7 +17,13 @@ from pathlib import Path
 import numpy as np
 
 from radarcal import geometry
-from radarcal.extrinsics.radar_lidar import Pose2, build_scene_obs, calibrate_rig, fit_rigid_2d, procrustes_floor
+from radarcal.extrinsics.radar import (
+    Pose2,
+    build_scene_obs,
+    calibrate_rig,
+    fit_rigid_2d,
+    procrustes_floor,
+)
 from radarcal.synth.radar import RadarRigSpec, RadarSceneSpec, generate_radar_session
 
 # N = 4 reflectors (forward, lateral, apex height) relative to the main LiDAR's ground point
@@ -98,7 +104,11 @@ def slant_bias(height_diff: float = 0.5, model: str = "slant") -> dict:
 
 
 def tudelft(root) -> dict:
-    from radarcal.extrinsics.radar_lidar import board_reflector_centres, leave_one_out, slant_predict
+    from radarcal.extrinsics.radar import (
+        board_reflector_centres,
+        leave_one_out,
+        slant_predict,
+    )
     from radarcal.io.radar import read_tudelft_accumulator, read_tudelft_example
 
     circ, rxy = read_tudelft_example(root / "optimization_example_data")
@@ -119,6 +129,14 @@ def tudelft(root) -> dict:
 
 
 def main(argv: list[str]) -> int:
+    if argv and argv[0] == "features":  # python -m benchmarks.radar_lidar features [n_seeds]
+        import tempfile
+
+        k = int(argv[1]) if len(argv) > 1 else 6
+        with tempfile.TemporaryDirectory() as tmp:
+            for fam in ("tune", "check"):
+                print_feature_benchmark(feature_benchmark(fam, range(100, 100 + k), Path(tmp)))
+        return 0
     n = int(argv[0]) if argv else 200
     print(f"Monte Carlo: 1 radar, N = 4 reflectors, full pipeline (synthetic cloud -> extraction -> NLS), {n} runs each")
     print(f"{'sigma':>6} {'frames':>6} {'model':>6} | {'RMS yaw':>9} {'floor':>8} {'ratio':>6} | {'RMS pos':>8} {'floor':>8} {'ratio':>6} | {'planar floor':>17} | {'s':>5}")
@@ -150,7 +168,7 @@ def main(argv: list[str]) -> int:
 
 
 def lidar_lidar(root) -> dict:
-    from radarcal.extrinsics.lidar_lidar import register_lidar
+    from radarcal.extrinsics.radar.lidar_lidar import register_lidar
     from radarcal.io import read_cloud
 
     top = read_cloud(root / "top.pcd").points.astype(float)
@@ -165,6 +183,89 @@ def lidar_lidar(root) -> dict:
             out[f"{name} ({method})"] = {"method": method, "f0": r.initial_fitness, "f1": r.fitness, "r0": r.initial_rmse, "r1": r.inlier_rmse,
                                          "tilt": (r.prealign or {}).get("tilt_fixed_deg", float("nan")), "rpy": xr[3:], "xyz": xr[:3], "s": time.perf_counter() - t0}
     return out
+
+
+# --- sessions with the held-out features (issue 18), through the code path of the command -------------------------
+def ideal_fit_error(ses, radar: str, range_gate: float = 4.0) -> tuple[float, float]:
+    """(yaw deg, position m) error of the ideal least-squares fit on the same detections: every detection of a true
+    reflector (generator labels) that the LiDAR can see (within its ``range_gate``, horizontally) against its true
+    apex, slant model at the true mounting height, weighted by the generator's own per-detection sigma (the best
+    linear unbiased estimate)."""
+    T_v_r = np.array(ses.truth["T_vehicle_sensor"][radar])
+    main_xy = np.array(ses.truth["T_vehicle_sensor"][ses.truth["main_lidar"]])[:2, 3]
+    src, dst, z, w = [], [], [], []
+    for sc, tr in zip(ses.scenes, ses.truth["scenes"]):
+        names = np.array(sc["radar"]["radar"])
+        lab = np.array(tr["detection_label"])
+        sig = np.array([np.nan if v is None else v for v in tr["detection_sigma_m"]])
+        ap = np.array(tr["apex_vehicle"])
+        seen = np.linalg.norm(ap[:, :2] - main_xy, axis=1) <= range_gate
+        sel = (names == radar) & (lab >= 0)
+        sel[sel] = seen[lab[sel]]
+        src.append(ap[lab[sel], :2]), z.append(ap[lab[sel], 2]), dst.append(sc["radar"]["xy"][sel]), w.append(1 / sig[sel] ** 2)
+    src, dst, z, w = map(np.concatenate, (src, dst, z, w))
+    f = fit_rigid_2d(src, dst, src_z=z, height=ses.truth["radar_mount_height_m"][radar], weights=w / w.mean())
+    p, t = f.pose.inverse(), Pose2.from_T(T_v_r)
+    return float(np.degrees(abs((p.theta - t.theta + np.pi) % (2 * np.pi) - np.pi))), float(np.linalg.norm(p.t - t.t))
+
+
+def feature_session(seed: int, family: str, workdir: Path) -> dict:
+    """Generate one session of ``family`` (:func:`radarcal.synth.radar.feature_spec`), write it, read it back and run
+    ``calibrate`` as ``radarcal radar-lidar`` does; errors against truth, the ideal fit, sigma z-scores, LiDARs."""
+    from radarcal.extrinsics.radar.session import calibrate
+    from radarcal.io.radar import read_radar_session
+    from radarcal.synth.radar import feature_spec, write_radar_session
+
+    ses = generate_radar_session(feature_spec(seed, family))
+    folder = write_radar_session(ses, workdir / f"{family}_{seed}")
+    t0 = time.perf_counter()
+    res = calibrate(read_radar_session(folder))
+    out = {"seed": seed, "family": family, "radars": {}, "lidars": {}, "refusals": res.refusals, "s": time.perf_counter() - t0}
+    T_G_main = geometry.invert_T(res.cal.T_lidar_G)
+    for r, rr in res.cal.radars.items():
+        T_true = np.array(ses.truth["T_main_sensor"][r])
+        deg, m = geometry.pose_error(rr.T_lidar_radar, T_true)
+        ideg, im = ideal_fit_error(ses, r)
+        true_G = Pose2.from_T(T_G_main @ T_true)
+        err = np.array([(rr.pose_G.theta - true_G.theta + np.pi) % (2 * np.pi) - np.pi, *(rr.pose_G.t - true_G.t)])
+        sig = np.array([rr.sigma_G["theta"], rr.sigma_G["a"], rr.sigma_G["b"]])
+        out["radars"][r] = {"deg": deg, "m": m, "ideal_deg": ideg, "ideal_m": im, "z": err / sig}
+    for n, d in res.lidars.items():
+        deg, m = geometry.pose_error(d["T"], np.array(ses.truth["T_main_sensor"][n]))
+        out["lidars"][n] = {"deg": deg, "m": m, "refused": d["refused"], "reflector_pairs": d["refinement"].n_reflectors}
+    return out
+
+
+def feature_benchmark(family: str, seeds, workdir: Path) -> dict:
+    """Pooled over ``seeds``: per radar the RMS error and that of the ideal fit (ratio), the share of sigma z-scores
+    within 3, and every second-LiDAR outcome (stored within 0.2 deg / 2 cm, refused, or stored wrong)."""
+    runs = [feature_session(s, family, workdir) for s in seeds]
+    radars = {}
+    for name in runs[0]["radars"]:
+        rs = [r["radars"][name] for r in runs if name in r["radars"]]
+        def rms(k, rs=rs):
+            return float(np.sqrt(np.mean([x[k] ** 2 for x in rs])))
+
+        radars[name] = {"n": len(rs), "rms_deg": rms("deg"), "ideal_rms_deg": rms("ideal_deg"), "rms_m": rms("m"), "ideal_rms_m": rms("ideal_m"),
+                        "ratio_deg": rms("deg") / rms("ideal_deg"), "ratio_m": rms("m") / rms("ideal_m")}
+    z = np.array([x["z"] for r in runs for x in r["radars"].values()])
+    lid = [(r["seed"], n, d) for r in runs for n, d in r["lidars"].items()]
+    return {"family": family, "runs": runs, "radars": radars, "coverage_3sigma": (np.abs(z) <= 3).mean(axis=0) if len(z) else np.zeros(3),
+            "lidar_stored_ok": sum(1 for _, _, d in lid if not d["refused"] and d["deg"] <= 0.2 and d["m"] <= 0.02),
+            "lidar_refused": sum(1 for _, _, d in lid if d["refused"]), "lidar_stored_wrong": sum(1 for _, _, d in lid if not d["refused"] and (d["deg"] > 0.2 or d["m"] > 0.02)),
+            "lidars": lid}
+
+
+def print_feature_benchmark(b: dict) -> None:
+    print(f"\nfamily {b['family']!r}: {len(b['runs'])} sessions (tripod legs, turned reflectors, low-RCS clutter, multipath, ground-and-wall, 2nd LiDAR yawed 70 deg)")
+    print(f"  {'radar':>13} | {'RMS yaw':>8} {'ideal':>7} {'ratio':>5} | {'RMS pos':>8} {'ideal':>7} {'ratio':>5}")
+    for n, d in b["radars"].items():
+        print(f"  {n:>13} | {d['rms_deg']:7.3f}° {d['ideal_rms_deg']:6.3f}° {d['ratio_deg']:5.2f} | {100 * d['rms_m']:6.2f}cm {100 * d['ideal_rms_m']:5.2f}cm {d['ratio_m']:5.2f}")
+    c = b["coverage_3sigma"]
+    print(f"  truth within 3 sigma: yaw {100 * c[0]:.0f} %, x {100 * c[1]:.0f} %, y {100 * c[2]:.0f} % (ground frame)")
+    print(f"  second LiDAR: {b['lidar_stored_ok']} stored within 0.2 deg / 2 cm, {b['lidar_refused']} refused, {b['lidar_stored_wrong']} stored wrong")
+    for seed, n, d in b["lidars"]:
+        print(f"    seed {seed} {n}: {d['deg']:.3f} deg / {100 * d['m']:.2f} cm, {d['reflector_pairs']} reflector pairs" + (f" -- refused: {d['refused']}" if d["refused"] else " -- stored"))
 
 
 if __name__ == "__main__":

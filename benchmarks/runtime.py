@@ -19,6 +19,7 @@ and memory over a 10 000-frame replay.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import resource
 import sys
@@ -188,8 +189,7 @@ def bench_loop(frames: int = 150) -> dict:
             k = 0
             while True:
                 for c in rep.cloud_frames():
-                    c.t += k * period
-                    yield c
+                    yield dataclasses.replace(c, t=c.t + k * period)
                 k += 1
 
         def detect_cycled(f):
@@ -225,7 +225,8 @@ def bench_loop(frames: int = 150) -> dict:
 def bench_memory(total: int = 10_000) -> dict:
     from radarcal.runtime.detector import DetectionsFile
     from radarcal.runtime.loop import run
-    from radarcal.runtime.sources import CameraFrame, CloudFrame, merge_by_time, open_replay
+    from radarcal.io import Cloud
+    from radarcal.runtime.sources import CameraFrame, merge_by_time, open_replay
 
     b, Pipeline, RunConfig = _rig()
     rep = open_replay(SAMPLE)
@@ -246,7 +247,7 @@ def bench_memory(total: int = 10_000) -> dict:
         cycle = 0
         while True:
             for t, p in rep.clouds:
-                yield CloudFrame(cycle * period + t, read_cloud(p).points)
+                yield Cloud(read_cloud(p).points, t=cycle * period + t)
             cycle += 1
 
     rss, cur = {}, {}

@@ -63,12 +63,13 @@ BACKUPS_KEPT = 10  # timestamped backups kept next to a bundle; older ones are r
 
 SCHEMA_VERSION = 1
 
-DEFAULT_RUNTIME: dict[str, Any] = {
-    "hero_range_offset_m": 0.0,
-    "cloud_queue_points": 200_000,
-    "cloud_queue_age_s": 1.0,
-    "referee_season": 2024,
-}
+def _default_runtime() -> dict[str, Any]:
+    from radarcal.runtime.config import RunConfig  # the one declaration of the runtime defaults (no numpy: light)
+
+    return RunConfig.bundle_defaults()
+
+
+DEFAULT_RUNTIME: dict[str, Any] = _default_runtime()  # what a new bundle's runtime: section lists
 
 
 def _version() -> str:
@@ -165,8 +166,21 @@ class Bundle:
     runtime: dict[str, Any] = field(default_factory=lambda: dict(DEFAULT_RUNTIME))
     sessions: dict[str, str] = field(default_factory=dict)
     path: Path | None = None
+    _field_cache: tuple[int, Any] | None = field(default=None, init=False, repr=False, compare=False)
 
     # --- queries ---------------------------------------------------------------------------------------------
+    def field(self):
+        """The field model as a :class:`radarcal.field.FieldModel`, parsed once (``radarcal.field.field_from_dict``;
+        an ``InputError`` naming the bundle when it is invalid); None when the bundle has none. Assigning a new
+        ``field_model`` dict re-parses (the cache follows the dict object, not edits inside it)."""
+        if not self.field_model:
+            return None
+        if self._field_cache is None or self._field_cache[0] != id(self.field_model):
+            from radarcal.field import field_from_dict
+
+            self._field_cache = (id(self.field_model), field_from_dict(self.field_model, f"{self.path}: field" if self.path else "bundle field"))
+        return self._field_cache[1]
+
     def camera(self, name: str) -> Camera:
         if name not in self.cameras:
             known = ", ".join(sorted(self.cameras)) or "none"

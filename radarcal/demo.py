@@ -44,7 +44,7 @@ def main() -> int:
     rf = s["robot_frames"]
     print(f"  replay: {meta['n_frames']} camera frames at {meta['fps']:g} fps, LiDAR {meta['lidar_hz']:g} Hz, field {meta['field']}, seed {meta['seed']}")
     print(f"  ran {s['frames']} frames in {s['wall_s']:.2f} s ({s['fps']:.0f} FPS with precomputed detections), {s['clouds']} clouds fused")
-    print(f"  robot positions: {rf.get('depth', 0)} from LiDAR depth, {rf.get('ground', 0)} from the ground ray, {rf.get('predicted', 0)} predicted by the tracker")
+    print(f"  robot positions: {rf.get('lidar', 0)} from LiDAR clusters, {rf.get('depth', 0)} from LiDAR depth in a box, {rf.get('ground', 0)} from the ground ray, {rf.get('predicted', 0)} predicted by the tracker")
     print(f"  accuracy vs truth.jsonl: {acc['located']}/{acc['visible']} visible robots located, horizontal error median {acc['median_m']:.3f} m, "
           f"p95 {acc['p95_m']:.3f} m, max {acc['max_m']:.3f} m")
     print("  per-stage latency ms (median): " + ", ".join(f"{k} {v['median']:.2f}" for k, v in lat.items()))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import textwrap
@@ -441,3 +440,30 @@ def test_session_round_trip(tmp_path):
     written.unlink()
     with pytest.raises(InputError, match="session file not found"):
         load_session(again, "intrinsics/cam0")
+
+
+def test_field_accessor_parses_once_and_runtime_defaults_have_one_source(tmp_path):
+    import dataclasses
+
+    from radarcal.bundle import Bundle
+    from radarcal.errors import InputError
+    from radarcal.field import builtin_field
+    from radarcal.runtime.config import RunConfig
+
+    b = Bundle(path=tmp_path / "b.yaml")
+    assert b.field() is None
+    b.field_model = builtin_field("rmuc2024").to_dict()
+    fm = b.field()
+    assert fm is b.field() and fm.name == "rmuc2024" and "blue_outpost" in fm.landmarks  # parsed once
+    b.field_model = {**b.field_model, "name": "edited"}
+    assert b.field().name == "edited"  # a new dict is parsed again
+    b.field_model = {"name": "broken"}
+    with pytest.raises(InputError, match="b.yaml: field"):
+        b.field()
+    # DEFAULT_RUNTIME is derived from RunConfig's defaults; from_bundle reads what the bundle stores over them
+    defaults = {f.name: f.default for f in dataclasses.fields(RunConfig)}
+    assert radarcal.bundle.DEFAULT_RUNTIME == {"hero_range_offset_m": defaults["hero_range_offset_m"], "cloud_queue_points": defaults["cloud_queue_points"],
+                                               "cloud_queue_age_s": defaults["cloud_queue_age_s"], "referee_season": defaults["season"]}  # fmt: skip
+    b.runtime = {"referee_season": "2025", "sentry_xy": [3, 4, 0], "team": "blue", "cloud_queue_points": 5}
+    cfg = RunConfig.from_bundle(b, team=None, robot_radius_m=0.3)
+    assert (cfg.season, cfg.sentry_xy, cfg.team, cfg.cloud_queue_points, cfg.robot_radius_m, cfg.depth_max_age_s) == (2025, (3.0, 4.0), "blue", 5, 0.3, defaults["depth_max_age_s"])

@@ -55,7 +55,7 @@ def parse_image_size(text: str) -> tuple[int, int]:
 
 
 @app.command()
-def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool = JsonOpt) -> None:
+def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: JsonOpt = False) -> None:
     """Print what the bundle holds."""
     b = load_bundle(bundle)
 
@@ -82,7 +82,7 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool 
 
 
 @app.command()
-def validate(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: bool = JsonOpt) -> None:
+def validate(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: JsonOpt = False) -> None:
     """Load and check the bundle; exit 0 when valid, 2 with the offending field otherwise."""
     from radarcal.verdicts import forced_entries
 
@@ -108,7 +108,7 @@ def import_(
     select: str = typer.Option(None, "--select", help="Camera inside a multi-camera file (Kalibr cam1; OpenCV stereo 'left'/'right' = M1/D1 or M2/D2; KITTI cam0..cam3, default cam2)."),
     image_size: str = typer.Option(None, "--image-size", help="WIDTHxHEIGHT, for files that do not record it (OpenCV stereo_calib output, KITTI)."),
     lidar: str = typer.Option("lidar0", "--lidar", help="Frame name for the LiDAR -> camera extrinsic when the file also holds one (KITTI Tr_velo_to_cam, Calib-Anything T)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Import camera intrinsics (and the LiDAR -> camera extrinsic, when the file holds one) from another tool's file."""
     from radarcal.io.camera_formats import kitti_camera_index
@@ -143,7 +143,7 @@ def export(
     camera: str = typer.Option(..., "--camera"),
     fmt: str = typer.Option("ros", "--format", help=f"One of: {', '.join(EXPORT_FORMATS)}."),
     out: Path = typer.Option(None, "-o", "--output", help="Output file (stdout if omitted)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Export one camera's intrinsics for another tool (--json: {camera, format, output, text} on stdout)."""
     if fmt not in EXPORT_FORMATS:
@@ -169,7 +169,7 @@ def set_transform(
     target: str = typer.Argument(..., help="Target frame a of T_a_b (e.g. cam0)."),
     source: str = typer.Argument(..., help="Source frame b of T_a_b (e.g. lidar0)."),
     file: Path = typer.Argument(..., help="4x4 as JSON or text, or 'x y z roll pitch yaw' (m, deg)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Store T_target_source (maps points in SOURCE into TARGET) from a file."""
     if target == source:

@@ -8,20 +8,25 @@ from __future__ import annotations
 
 import json
 import sys
-from typing import Any, Callable
+from pathlib import Path
+from typing import Annotated, Any, Callable, Optional
 
 import typer
 from rich.console import Console
 
 from radarcal.plain import to_plain
 
-__all__ = ["err_console", "emit", "progress", "BundleOpt", "JsonOpt", "to_jsonable", "command_line"]
+__all__ = ["err_console", "emit", "progress", "BundleOpt", "ReplayBundleOpt", "JsonOpt", "CloudTopicOpt", "to_jsonable", "command_line"]
 
 # Progress bars and logs go to stderr so that --json output on stdout stays clean.
 err_console = Console(stderr=True)
 
-BundleOpt = typer.Option(..., "--bundle", "-b", help="Calibration bundle (YAML); created if missing.")
-JsonOpt = typer.Option(False, "--json", help="Machine-readable summary on stdout.")
+# Options shared by several commands, declared once (typer ``Annotated``): ``bundle: BundleOpt = ...`` (required),
+# ``as_json: JsonOpt = False``.
+BundleOpt = Annotated[Path, typer.Option("--bundle", "-b", help="Calibration bundle (YAML); a calibration command creates it when missing and adds its result.")]
+ReplayBundleOpt = Annotated[Optional[Path], typer.Option("--bundle", "-b", help="Calibration bundle (default: calib.yaml inside --replay).")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable summary on stdout.")]
+CloudTopicOpt = Annotated[Optional[str], typer.Option("--cloud-topic", help="Bag topic of the clouds (default: every Livox CustomMsg / PointCloud2 topic; a --cloud scene bag with several needs one).")]
 
 
 def to_jsonable(obj: Any) -> Any:

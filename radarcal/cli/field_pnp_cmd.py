@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import typer
 
-from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.cli.common import BundleOpt, JsonOpt, command_line, emit, err_console
 from radarcal.cli.outputs import check_outputs, input_file
 from radarcal.errors import InputError
 
@@ -33,7 +33,7 @@ def _table(em, which: str) -> list[str]:
 
 
 def field_pnp(
-    bundle: Path = typer.Option(..., "--bundle", "-b", help="Calibration bundle with the camera's intrinsics (updated)."),
+    bundle: BundleOpt = ...,
     camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
     field: str = typer.Option(None, "--field", help="Built-in field (rmuc2024) or a YAML/JSON field file [default: the bundle's field, else rmuc2024]."),
     points: Path = typer.Option(None, "--points", help="picks.csv with name,u,v rows (written by the picker when --image is given and the file does not exist)."),
@@ -50,14 +50,16 @@ def field_pnp(
     overlay: Path = typer.Option(None, "--overlay", help="With --image: write the image with the field outline, raised areas and all landmarks projected by the solved pose."),
     depth: str = typer.Option("auto", "--depth", help="Depth source for the printed map: auto (LiDAR if one is chained to the camera) | lidar | ground."),
     lidar: str = typer.Option(None, "--lidar", help="LiDAR sensor name (default: any LiDAR chained to the camera)."),
-    as_json: bool = JsonOpt,
+    ui: str = typer.Option(None, "--ui", help="With --image: click the landmarks in the browser, served on [HOST:]PORT (127.0.0.1 unless a host is given)."),
+    as_json: JsonOpt = False,
 ) -> None:
     """Solve the camera's pose on the field from clicked landmarks; write T_<camera>_field and an error map."""
-    from radarcal.bundle import Provenance, hash_inputs, load_bundle, save_bundle, save_session
-    from radarcal.field import field_from_dict, load_field
+    from radarcal.bundle import Provenance, hash_inputs, load_bundle, save_bundle
+    from radarcal.field import load_field
     from radarcal.io import read_image
     from radarcal.pnp.error_map import error_map
     from radarcal.pnp.field_pnp import FieldPnPError, PnPOptions, solve_field_pnp
+    from radarcal.pnp.session import FieldPnPSession
     from radarcal.pnp.picks import DEFAULT_PICKS, has_display, pick_landmarks, read_picks, save_picks
 
     if overlay is not None and image is None:
@@ -78,14 +80,42 @@ def field_pnp(
         fm = load_field(field)
         field_src = field
     elif b.field_model:
-        fm = field_from_dict(b.field_model, f"{bundle}: field")
+        fm = b.field()
         field_src = f"bundle ({fm.name})"
     else:
         fm = load_field("rmuc2024")
         field_src = "rmuc2024"
 
     # --- picks: file, or the interactive picker ---------------------------------------------------------------
-    if points is not None and points.exists():
+    opt = PnPOptions(click_sigma_px=click_sigma, max_rms_px=max_rms, ransac_threshold_px=ransac_px)
+    T_nudged = None
+    if ui is not None:  # the browser page (radarcal/pnp/ui.py): saving runs the same solver and checks as the CSV path
+        if image is None:
+            raise InputError("--ui", "needs --image (the camera frame to click on)")
+        from radarcal.pnp.ui import pick_in_browser, pose_result
+
+        img = read_image(image)
+        if tuple(img.shape[1::-1]) != tuple(cam.image_size):
+            raise InputError(image, f"image is {img.shape[1]}x{img.shape[0]} but camera {camera} is {cam.width}x{cam.height}")
+        want = [s.strip() for s in landmarks.split(",")] if landmarks else DEFAULT_PICKS[side]
+        unknown = [n for n in want if n not in fm.landmarks]
+        if unknown:
+            raise InputError("--landmarks", f"unknown landmark(s) {', '.join(unknown)} (the field has: {', '.join(sorted(fm.landmarks))})")
+        picks_src = points or image.with_suffix(".picks.csv")
+        start = dict(zip(*read_picks(points, fm.landmarks))) if points is not None and points.exists() else {}
+
+        def check(names, uv, T_override):
+            if np.any(~cam.in_image(uv, margin=-0.5)):
+                raise InputError(picks_src, "a pick is outside the image")
+            r = solve_field_pnp(cam, fm.landmark_array(names), uv, names, opt, surface_z=fm.surface_z)
+            r = pose_result(cam, r, T_override, opt) if T_override is not None else r
+            return {"message": f"{len(names)} picks, RMS {r.rms_px:.2f} px -> T_{camera}_field in {bundle}", "rms_px": r.rms_px}
+
+        names, uv, T_nudged = pick_in_browser(img, cam, fm, want, check, ui, T_init=b.T(camera, "field") if b.has_T(camera, "field") else None, options=opt, initial=start)
+        save_picks(picks_src, names, uv)
+        names, uv = read_picks(picks_src, fm.landmarks)  # from here on exactly the CSV path
+        err_console.print(f"wrote {len(names)} picks to {picks_src}")
+    elif points is not None and points.exists():
         names, uv = read_picks(points, fm.landmarks)
         picks_src = points
     elif image is not None:
@@ -118,9 +148,10 @@ def field_pnp(
         raise InputError(picks_src, f"pick {names[int(np.argmax(outside))]} is outside the {cam.width}x{cam.height} image")
 
     # --- solve ---------------------------------------------------------------------------------------------
-    opt = PnPOptions(click_sigma_px=click_sigma, max_rms_px=max_rms, ransac_threshold_px=ransac_px)
     try:
         res = solve_field_pnp(cam, fm.landmark_array(names), uv, names, opt, surface_z=fm.surface_z)
+        if T_nudged is not None:
+            res = pose_result(cam, res, T_nudged, opt)
     except FieldPnPError as e:
         raise InputError(picks_src, str(e)) from None
 
@@ -154,25 +185,12 @@ def field_pnp(
     prov = Provenance(command=command_line(), inputs_sha256=hash_inputs([picks_src] + ([image] if image else []), extra={"field": fm.to_dict(), "click_sigma": click_sigma, "max_rms": max_rms, "ransac_px": ransac_px}))
     b.set_transform(camera, "field", res.T_cam_field, method=f"field-pnp ({res.method}) on {fm.name}", residual={"rms_px": res.rms_px, "per_point_px": per_point, "n_picks": len(names), "n_inliers": int(res.inliers.sum()), "outliers": [n for n, k in zip(names, res.inliers) if not k]}, sigma=res.sigma, provenance=prov)
     b.field_model = fm.to_dict()
-    save_session(
-        b,
-        f"field_pnp/{camera}",
-        {
-            "names": np.array(names, dtype=str),
-            "uv": res.uv,
-            "p_field": res.p_field,
-            "residuals_px": res.residuals_px,
-            "inliers": res.inliers,
-            "T_cam_field": res.T_cam_field,
-            "cov_pose": res.cov_pose,
-            "camera_position": res.camera_position,
-            "grid_x": em.xs,
-            "grid_y": em.ys,
-            "sigma_lidar": em.sigma_lidar,
-            "sigma_ground": em.sigma_ground,
-        },
-        {"field": fm.name, "camera": camera, "click_sigma_px": click_sigma, "pixel_sigma_px": pixel_sigma, "range_sigma_m": range_sigma, "rms_px": res.rms_px, "depth_source": used, "lidar": lidar_name, "warnings": res.warnings, "picks_file": str(picks_src)},
-    )
+    FieldPnPSession(
+        names=np.array(names, dtype=str), uv=res.uv, p_field=res.p_field, residuals_px=res.residuals_px, inliers=res.inliers, T_cam_field=res.T_cam_field,
+        cov_pose=res.cov_pose, camera_position=res.camera_position, grid_x=em.xs, grid_y=em.ys, sigma_lidar=em.sigma_lidar, sigma_ground=em.sigma_ground,
+        field=fm.name, camera=camera, click_sigma_px=click_sigma, pixel_sigma_px=pixel_sigma, range_sigma_m=range_sigma, rms_px=float(res.rms_px),
+        depth_source=used, lidar=lidar_name, image=str(image) if image else "", picks_file=str(picks_src), warnings=list(res.warnings),
+    ).save(b, f"field_pnp/{camera}")  # fmt: skip
     save_bundle(b, bundle)
     # --- report ----------------------------------------------------------------------------------------------
     from radarcal import geometry

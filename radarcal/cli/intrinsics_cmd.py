@@ -11,13 +11,14 @@ import numpy as np
 import typer
 
 from radarcal.board import BoardSpec, object_points
-from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
+from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle
 from radarcal.cli.common import BundleOpt, JsonOpt, command_line, emit, err_console
 from radarcal.errors import InputError
 from radarcal.cli.bundle_cmd import parse_image_size
 from radarcal.intrinsics.collect import ViewInput, decide_layout, detect_files, diagnose, expand_sources, sample_video, views_from_corner_file
 from radarcal.intrinsics.detect import normalise_order
 from radarcal.intrinsics.pipeline import IntrinsicsResult, NotEnoughViews, run_intrinsics
+from radarcal.intrinsics.session import IntrinsicsSession, StereoSession
 from radarcal.intrinsics.select import DESCRIPTOR_NAMES, TARGET_RANGES, view_descriptor
 from radarcal.intrinsics.solve import MODELS, SolveError
 from radarcal.intrinsics.stereo import StereoResult, pair_by_name, stereo_calibrate
@@ -140,42 +141,6 @@ def _summary(name: str, res: IntrinsicsResult, layout_info: dict) -> dict:
     return s
 
 
-def _session_arrays(res: IntrinsicsResult) -> dict:
-    cal = res.calibration
-    det = [res.detections[i] for i in res.view_index]
-    obj = object_points(res.board)
-    a = {
-        "names": np.array(res.names, dtype=str),
-        "status": np.array(res.status, dtype=str),
-        "view_index": np.array(res.view_index, int),
-        "corner_view": np.concatenate([np.full(len(d.ids), k) for k, d in enumerate(det)]),
-        "corner_ids": np.concatenate([d.ids for d in det]),
-        "corners_uv": np.concatenate([d.uv for d in det]),
-        "object_points": np.concatenate([obj[d.ids] for d in det]),
-        "residuals": np.concatenate(cal.residuals),
-        "inliers": np.concatenate(cal.inliers),
-        "rvecs": cal.rvecs,
-        "tvecs": cal.tvecs,
-        "view_used": cal.view_used,
-        "view_rms_px": cal.view_rms(),
-        "view_edge_width_px": np.array([d.edge_width_px for d in det]),
-        "descriptors": res.descriptors,
-        "K": cal.camera.K,
-        "dist": cal.camera.dist,
-        "image_size": np.array(cal.camera.image_size),
-        "param_names": np.array(cal.param_names, dtype=str),
-        "cov_intrinsics": cal.cov,
-        "coverage_grid": res.coverage.grid,
-        "uncertainty_u": res.uncertainty.u,
-        "uncertainty_v": res.uncertainty.v,
-        "uncertainty_sigma_px": res.uncertainty.sigma_px,
-        "uncertainty_valid": res.uncertainty.valid,
-    }
-    if res.crossval is not None:
-        a.update({"crossval_u": res.crossval.u, "crossval_v": res.crossval.v, "crossval_diff_px": res.crossval.diff_px, "crossval_sigma_px": res.crossval.sigma_px})
-    return a
-
-
 def _bar(p: float, width: int = 20) -> str:
     n = int(round(max(0.0, min(1.0, p)) * width))
     return "#" * n + "." * (width - n)
@@ -258,7 +223,7 @@ def intrinsics(
     dictionary: str = typer.Option("DICT_4X4_1000", "--dict", help="ChArUco ArUco dictionary."),
     layout: str = typer.Option("auto", "--layout", help="ChArUco layout: auto | new | legacy."),
     camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
-    bundle: Path = BundleOpt,
+    bundle: BundleOpt = ...,
     model: str = typer.Option("pinhole5", "--model", help="auto | pinhole5 | pinhole4 (k3 = 0, for Kalibr radtan) | pinhole8 (rational) | fisheye (equidistant)."),
     stereo: bool = typer.Option(False, "--stereo", help="Stereo: SOURCE are the left images, --right the right ones."),
     right: list[str] = typer.Option(None, "--right", help="Right-camera images/folder/glob (repeatable); implies --stereo."),
@@ -269,7 +234,7 @@ def intrinsics(
     no_crossval: bool = typer.Option(False, "--no-crossval", help="Skip the split-halves cross-validation."),
     k_sigma: float = typer.Option(4.0, "--k-sigma", help="Corner outlier threshold in σ."),
     force: bool = typer.Option(False, "--force", help="Store the intrinsics even when the cross-validation says INCONSISTENT (flagged in the bundle)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Calibrate camera intrinsics from chessboard / ChArUco views (and T_cam1_cam0 with --right)."""
     layouts = {"auto": None, "new": False, "legacy": True}
@@ -312,25 +277,14 @@ def intrinsics(
     for idx, (name, res, lay, _files) in enumerate(results):
         s = _summary(name, res, lay)
         cam, rms, sigma = res.camera, res.calibration.rms_px, res.calibration.sigma
-        extra = {
-            "model": res.calibration.model,
-            "noise_px": res.calibration.noise_px,
-            "views_used": int(res.calibration.view_used.sum()),
-            "views_total": len(res.names),
-            "board": {k: v for k, v in res.board.__dict__.items()},
-            "coverage": s["coverage"],
-            "uncertainty": s["uncertainty"],
-        }
-        if res.crossval:
-            extra["crossval"] = {k: v for k, v in res.crossval.summary().items() if k in ("diff_median_px", "sigma_median_px", "ratio_median", "consistent")}
+        extra = {}  # the result is K/dist/rms/sigma above; the details are in the session (stored once)
         if st is not None and not fix_intrinsics:  # the joint stereo solve refined these intrinsics: write those
             s["mono"] = {"K": cam.K, "dist": cam.dist, "rms_px": rms, "sigma": sigma}
             cam = st.camera0 if idx == 0 else st.camera1
             sigma = st.sigma0 if idx == 0 else st.sigma1
             rms = st.rms_px
             s.update({"K": cam.K, "dist": cam.dist, "sigma": sigma, "rms_px": rms, "refined_by": f"joint stereo solve over {st.n_pairs} pairs"})
-            extra["refined_by"] = s["refined_by"]
-            extra["mono_rms_px"] = res.calibration.rms_px
+            extra = {"refined_by": s["refined_by"], "mono_rms_px": res.calibration.rms_px}  # the session holds the mono solve
         summary["cameras"].append(s)
         if not store:
             continue
@@ -338,24 +292,10 @@ def intrinsics(
         if forced:
             extra["forced"] = [r.split(": ", 1)[1] for r in forced]  # `bundle validate`, the report and `run` show it
         b.set_camera(name, cam, rms_px=rms, sigma=sigma, provenance=prov, extra=extra)
-        save_session(b, f"intrinsics/{name}", _session_arrays(res), {"camera": name, "summary": s, "board": res.board.__dict__})
+        IntrinsicsSession.from_result(name, res).save(b, f"intrinsics/{name}")
     if st is not None and store:
         b.set_transform(right_camera, camera, st.T_cam1_cam0, method="intrinsics --right (board pairs, " + ("mono intrinsics fixed)" if fix_intrinsics else "jointly with both cameras' intrinsics)"), residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)
-        save_session(
-            b,
-            f"stereo/{camera}_{right_camera}",
-            {
-                "pair_names": np.array(pair_names, dtype=str),
-                "T_cam1_cam0": st.T_cam1_cam0,
-                "rvecs_cam0": st.rvecs_cam0,
-                "tvecs_cam0": st.tvecs_cam0,
-                "residuals0": np.concatenate(st.residuals0),
-                "residuals1": np.concatenate(st.residuals1),
-                "inliers": np.concatenate(st.inliers),
-                "pair_of_corner": np.concatenate([np.full(len(r), k) for k, r in enumerate(st.residuals0)]),
-            },
-            {"camera0": camera, "camera1": right_camera},
-        )
+        StereoSession.from_result(camera, right_camera, st, pair_names).save(b, f"stereo/{camera}_{right_camera}")
         summary["stereo"] = {"T": f"T_{right_camera}_{camera}", "T_cam1_cam0": st.T_cam1_cam0, "baseline_m": st.baseline_m, "sigma": st.sigma, "rms_px": st.rms_px, "pairs": st.n_pairs}
     if store:
         save_bundle(b)

@@ -9,10 +9,11 @@ import numpy as np
 import typer
 
 from radarcal import geometry
-from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle, save_session
-from radarcal.cli.common import JsonOpt, command_line, emit, err_console
+from radarcal.bundle import Provenance, hash_inputs, load_or_create_bundle, save_bundle
+from radarcal.cli.common import BundleOpt, CloudTopicOpt, JsonOpt, command_line, emit, err_console
 from radarcal.cli.outputs import check_outputs
 from radarcal.errors import InputError
+from radarcal.extrinsics.lidar_camera_session import LidarCameraSession
 from radarcal.readout import camera_in_lidar, format_camera_in_lidar
 
 __all__ = ["lidar_camera"]
@@ -31,11 +32,12 @@ def _pair_list(text: str | None, n: int, what: str) -> tuple[float, ...] | None:
 
 
 def lidar_camera(
-    bundle: Path = typer.Option(..., "--bundle", "-b", help="Calibration bundle (YAML); must hold the camera's intrinsics."),
+    bundle: BundleOpt = ...,
     camera: str = typer.Option("cam0", "--camera", help="Camera name in the bundle."),
     lidar: str = typer.Option("lidar0", "--lidar", help="LiDAR name (frame) in the bundle."),
     images: list[Path] = typer.Option([], "--image", help="Image (raw, distorted); repeat for several scenes, paired in order with --cloud."),
-    clouds: list[Path] = typer.Option([], "--cloud", help="Point cloud (PCD/PLY/KITTI .bin/.npy) in the LiDAR frame; one per --image."),
+    clouds: list[Path] = typer.Option([], "--cloud", help="Point cloud (PCD/PLY/KITTI .bin/.npy) in the LiDAR frame, or a ROS bag whose clouds (one topic) are merged; one per --image."),
+    cloud_topic: CloudTopicOpt = None,
     init: Path = typer.Option(None, "--init", help="Initial T_cam_lidar: 4x4 JSON/text or 'x y z roll pitch yaw' (m, deg)."),
     corners: Path = typer.Option(None, "--corners", help="Manual correspondences CSV x,y,z,u,v[,view]."),
     board: str = typer.Option(None, "--board", help="Board size WIDTH,HEIGHT in m: detect boards in the clouds (RANSAC plane, rectangle, 4 corners)."),
@@ -55,11 +57,13 @@ def lidar_camera(
     overlay: Path = typer.Option(None, "--overlay", help="Write the first cloud over the first image, before | after (PNG)."),
     max_pnp_rms: float = typer.Option(3.0, "--max-pnp-rms", help="Refuse a corners/boards pose whose reprojection RMS over the kept correspondences exceeds this (px)."),
     force: bool = typer.Option(False, "--force", help="Store the result even when the refinement did not converge or the PnP residuals say it is wrong."),
-    as_json: bool = JsonOpt,
+    ui: str = typer.Option(None, "--ui", help="Nudge the initial pose by eye first: the first cloud over the first image in the browser on [HOST:]PORT (docs/console.md)."),
+    as_json: JsonOpt = False,
 ) -> None:
     """Calibrate T_cam_lidar: manual corners / boards (PnP) and/or targetless edge refinement."""
     from radarcal.extrinsics import lidar_camera as lc
-    from radarcal.io import read_cloud, read_image, read_transform
+    from radarcal.io import read_image, read_transform
+    from radarcal.io.cloud_sources import read_scene_cloud
     from radarcal.io.corners_csv import read_corners_csv, read_uv_csv
     from radarcal.synth.lidar_camera import MOUNT_R_CAM_LIDAR
 
@@ -81,7 +85,7 @@ def lidar_camera(
     for p, im in zip(images, imgs):
         if (im.shape[1], im.shape[0]) != cam.image_size:
             raise InputError(p, f"image is {im.shape[1]}x{im.shape[0]} but camera {camera!r} in the bundle is {cam.width}x{cam.height}")
-    clds = [read_cloud(p) for p in clouds]
+    clds = [read_scene_cloud(p, cloud_topic) for p in clouds]
     for p, c in zip(clouds, clds):
         if len(c) < 100:
             raise InputError(p, f"only {len(c)} points")
@@ -93,13 +97,20 @@ def lidar_camera(
     else:
         T0 = geometry.make_T(MOUNT_R_CAM_LIDAR, np.zeros(3))
         init_src = "default mounting (LiDAR x forward = camera z)"
+    if ui is not None:  # the operator nudges T0 by eye (radarcal/extrinsics/nudge_ui.py); the rest runs from it unchanged
+        if not imgs:
+            raise InputError("--ui", "needs an --image/--cloud pair (the cloud is drawn over the image)")
+        from radarcal.extrinsics.nudge_ui import nudge_in_browser
+
+        T0 = nudge_in_browser(imgs[0], cam, clds[0].points, T0, ui, max_range=max_range)
+        init_src = f"nudged in the browser from {init_src}"
     summary["init"] = init_src
     T = T0
     method = []
     residual: dict = {}
     sigma: dict = {}
-    arrays: dict = {"T_init": T0}
     refusals: list[str] = []  # what the tool's own checks say is wrong with the result (not stored without --force)
+    sess = LidarCameraSession(T_init=T0, camera=camera, lidar=lidar)  # what the report draws
 
     # ---- manual: picks and/or boards
     P_all, U_all, G_all = [], [], []  # groups: rows that stand or fall together (one board's 4 corners)
@@ -149,7 +160,7 @@ def lidar_camera(
         sigma.update({"pnp_rot_deg": np.degrees(sol.sigma[:3]).tolist(), "pnp_trans_m": sol.sigma[3:].tolist()})
         summary["pnp"] = {"rms_px": sol.rms_px, "residuals_px": sol.residuals_px, "flagged_rows": np.flatnonzero(sol.outliers), "sigma_rot_deg": np.degrees(sol.sigma[:3]), "sigma_trans_m": sol.sigma[3:],
                           "ok": sol.ok, "verdict": sol.verdict}
-        arrays.update({"pnp_p_lidar": P, "pnp_uv": U, "pnp_residuals_uv": sol.residuals_uv, "pnp_flagged": sol.outliers, "T_pnp": T})
+        sess.pnp_p_lidar, sess.pnp_uv, sess.pnp_residuals_uv, sess.pnp_flagged, sess.T_pnp = P, U, sol.residuals_uv, sol.outliers, T
 
     # ---- targetless refinement
     converged = True
@@ -166,7 +177,7 @@ def lidar_camera(
         if image_edges_kind not in ("lsd", "canny"):
             raise InputError("--image-edges", f"expected 'lsd' or 'canny', got {image_edges_kind!r}")
         if refine_method == "dense":
-            converged, T = _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, arrays)
+            converged, T = _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, sess)
             method.append("dense-edge-correlation")
     if refine and refine_method == "matches":
         scenes = []
@@ -207,9 +218,10 @@ def lidar_camera(
         sigma.update({"edge_rot_deg": np.degrees(res.sigma[:3]).tolist(), "edge_trans_m": res.sigma[3:].tolist()})
         if np.all(np.isfinite(res.sigma_bootstrap)):
             sigma.update({"edge_bootstrap_rot_deg": np.degrees(res.sigma_bootstrap[:3]).tolist(), "edge_bootstrap_trans_m": res.sigma_bootstrap[3:].tolist()})
-        arrays.update({"residuals_before": res.residuals_before, "residuals_after": res.residuals_after, **res.matches})
-        for name in PARAM_NAMES:
-            arrays[f"profile_{name}_offset"], arrays[f"profile_{name}_cost"] = res.profiles[name]
+        sess.residuals_before, sess.residuals_after, sess.scene_matches = res.residuals_before, res.residuals_after, dict(res.matches)
+        sess.profile_offsets = np.stack([np.asarray(res.profiles[n][0], float) for n in PARAM_NAMES])
+        sess.profile_costs = np.stack([np.asarray(res.profiles[n][1], float) for n in PARAM_NAMES])
+        sess.robust_scale_px = float(opts.loss_scale_px)
 
     moved = (geometry.pose_error(T, T0)[0], float(np.linalg.norm(camera_in_lidar(T)["position_m"] - camera_in_lidar(T0)["position_m"])))  # deg, camera centre m
     if not converged and refine and "refine" in summary and summary["refine"]["n_matches"] < 100:
@@ -239,13 +251,13 @@ def lidar_camera(
         residual["forced"] = list(refusals)  # `bundle validate`, the report and `run` show it
     if not refusals or force:
         inputs = [*images, *clouds] + [p for p in (init, corners, board_uv) if p is not None]
-        arrays["T_final"] = T
         b.set_transform(camera, lidar, T, method=" + ".join(method), residual=residual, sigma=sigma,
                         provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs(inputs)))
         b.set_sensor(lidar, type=b.sensors.get(lidar, {}).get("type", "lidar"))
         if b.path is None:
             b.path = Path(bundle)
-        save_session(b, f"lidar_camera/{camera}_{lidar}", arrays, {"init": init_src, "method": " + ".join(method), "converged": converged, "pairs": summary["pairs"]})
+        sess.T_final, sess.init, sess.method, sess.converged, sess.pairs, sess.warnings = T, init_src, " + ".join(method), bool(converged), summary["pairs"], list(summary["warnings"])
+        sess.save(b, f"lidar_camera/{camera}_{lidar}")
         save_bundle(b, bundle)
         summary["stored"] = True
     summary["seconds"] = time.perf_counter() - t_start
@@ -296,7 +308,7 @@ def _sigma_text(rot_deg, trans_m, rotation_only: bool) -> str:
     return rot if rotation_only else rot + ", trans " + part(trans_m, 100.0, 100.0, "cm", 2)
 
 
-def _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, arrays):
+def _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxel, image_edges_kind, summary, residual, sess):
     """``--refine-method dense``: all pairs share one T; the sparse method's edge score is reported as the common
     yardstick (before / after)."""
     from radarcal.extrinsics.dense import DenseOptions, DenseScene, image_energy, refine_dense
@@ -320,5 +332,5 @@ def _refine_dense(cam, imgs, clds, T, max_range, search_deg, rotation_only, voxe
                                "restart_spread_deg": res.spread_deg, "restart_spread_m": res.spread_m}
     residual.update({"dense_score": res.score, "dense_score_before": res.score_init, "edge_score_px": e1, "edge_score_before_px": e0,
                      "dense_restart_spread_deg": res.spread_deg, "dense_restart_spread_m": res.spread_m})
-    arrays["T_dense"] = res.T_cam_lidar
+    sess.T_dense = res.T_cam_lidar
     return res.converged, res.T_cam_lidar

@@ -14,12 +14,16 @@ from radarcal.cli import (
     field_pnp_cmd,
     intrinsics_cmd,
     lidar_camera_cmd,
+    lidar_field_cmd,
     radar_lidar_cmd,
+    record_cmd,
     report_cmd,
     run_cmd,
     synth_board_cmd,
     synth_field_cmd,
     synth_lidar_camera_cmd,
+    synth_match_cmd,
+    synth_livox_sim_cmd,
     synth_radar_cmd,
 )
 from radarcal.errors import InputError
@@ -38,9 +42,11 @@ app.add_typer(bundle_cmd.app, name="bundle")
 app.command("intrinsics")(intrinsics_cmd.intrinsics)
 app.command("lidar-camera")(lidar_camera_cmd.lidar_camera)
 app.command("field-pnp")(field_pnp_cmd.field_pnp)
+app.command("lidar-field")(lidar_field_cmd.lidar_field)
 app.command("radar-lidar")(radar_lidar_cmd.radar_lidar)
 app.command("run")(run_cmd.run)
 app.command("hero-offset")(run_cmd.hero_offset)
+app.command("record")(record_cmd.record)
 app.command("report")(report_cmd.report)
 
 # `radarcal synth <scene>`: ground-truth scene generators
@@ -50,6 +56,8 @@ synth_app.command("board")(synth_board_cmd.synth_board)
 synth_app.command("lidar-camera")(synth_lidar_camera_cmd.synth_lidar_camera)
 synth_app.command("field")(synth_field_cmd.synth_field)
 synth_app.command("radar")(synth_radar_cmd.synth_radar)
+synth_app.command("match")(synth_match_cmd.synth_match)
+synth_app.command("livox-sim")(synth_livox_sim_cmd.synth_livox_sim)
 
 
 def _click_classes(name: str) -> tuple[type, ...]:

@@ -84,7 +84,7 @@ def check_output(path: str | os.PathLike, protected: dict[Path, str] | None = No
             raise InputError(p, f"the {what} would overwrite {name}; give another file name")
     if folder:
         if rp.exists() and not rp.is_dir():
-            raise InputError(p, f"exists and is not a folder")
+            raise InputError(p, "exists and is not a folder")
         why = _writable_folder(rp if rp.exists() else rp.parent)
         if why:
             raise InputError(p, f"cannot write the {what}: {why}")

@@ -37,7 +37,7 @@ def report(
     truth: Path = typer.Option(None, "--truth", help="Ground-truth tracks in the same format: adds the error over time."),
     title: str = typer.Option("", "--title", help="Report title (default: the bundle file name)."),
     dpi: int = typer.Option(96, "--dpi", min=30, max=300, help="Figure resolution."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Build an HTML report (figures inline) from a bundle and its session files."""
     from radarcal.bundle import load_bundle

@@ -53,7 +53,7 @@ def synth_board(
     video: float = typer.Option(0.0, "--video", help="Also write video.avi (MJPG) of this many seconds: the board moving through the views."),
     fps: float = typer.Option(10.0, "--fps", help="Video frame rate."),
     blurred: int = typer.Option(0, "--blurred", help="How many of the views get a motion streak (1-1.6 % of the image width)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Render a calibration-target image set with known camera, poses and corner pixels."""
     from radarcal.board import BoardSpec

@@ -43,7 +43,7 @@ def synth_field(
     det_jitter: float = typer.Option(0.0, "--det-jitter", help="σ (px) of jitter on detection box edges."),
     det_dropout: float = typer.Option(0.0, "--det-dropout", help="Probability of a missed detection per robot and frame."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace OUT when it holds an earlier (or interrupted) replay."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Generate a RoboMaster field replay: images, LiDAR clouds, detections, truth, calib.yaml."""
     from radarcal.field import load_field

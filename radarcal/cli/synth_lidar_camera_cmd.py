@@ -29,7 +29,7 @@ def synth_lidar_camera(
     supersample: int = typer.Option(2, "--supersample", help="Rays per pixel side for anti-aliasing."),
     family: str = typer.Option("structured", "--family", help="structured (the scene above) or family2 (an independent family: corridors, a RoboMaster-like field, parking lots; Avia/Horizon-like or 32/64-beam scans; cameras drawn per seed; --lidar avia|horizon|spin32|spin64, --layout)."),
     layout: str = typer.Option("", "--layout", help="family2 only: corridor, field or parking (default: from the seed)."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Generate a structured scene seen by a Livox-like LiDAR and a distorted 1280x1024 camera, with known T_cam_lidar."""
     from radarcal.synth.lidar_camera import LidarCameraSceneParams, render_lidar_camera_scene, write_lidar_camera_scene

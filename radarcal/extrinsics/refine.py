@@ -24,11 +24,11 @@ from scipy.optimize import least_squares
 from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.extrinsics.edges import ImageEdges, LidarEdges, edge_score
+from radarcal.extrinsics.pose_params import PARAM_NAMES, parameter_profiles  # re-exported: the one definition is there
 
 __all__ = ["EdgeScene", "RefineOptions", "RefineResult", "refine_edges", "coarse_rotation_search", "match_edges", "block_bootstrap_sigma",
            "cost_profiles", "parameter_profiles", "PARAM_NAMES", "edge_verdict", "sigma_for_verdict"]
 
-PARAM_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
 
 
 @dataclass
@@ -497,24 +497,6 @@ def block_bootstrap_sigma(scenes, matches, T, o: RefineOptions, return_samples: 
     sd = np.std(xs, axis=0, ddof=1)
     return (sd, xs) if return_samples else sd
 
-
-def parameter_profiles(cost, x0: np.ndarray, half_widths, n: int = 21) -> tuple[np.ndarray, np.ndarray]:
-    """Evaluate ``cost(x0 + d e_i)`` for d on a symmetric grid of ``n`` steps per parameter.
-
-    Returns (offsets (P, n), costs (P, n)). ``cost`` takes a full parameter vector (e.g. the 6-vector
-    rx ry rz tx ty tz of a pose perturbation) and returns a scalar."""
-    x0 = np.asarray(x0, float).ravel()
-    hw = np.asarray(half_widths, float).ravel()
-    if hw.size != x0.size:
-        raise ValueError(f"{hw.size} half widths for {x0.size} parameters")
-    offsets = np.linspace(-1.0, 1.0, n)[None, :] * hw[:, None]
-    costs = np.empty_like(offsets)
-    for i in range(x0.size):  # a few dozen cost evaluations, each vectorised over all matches
-        for j, d in enumerate(offsets[i]):
-            x = x0.copy()
-            x[i] += d
-            costs[i, j] = float(cost(x))
-    return offsets, costs
 
 
 def cost_profiles(scenes, T, matches, f_scale=1.0, rot_deg: float = 1.0, trans_m: float = 0.1, n: int = 21) -> dict:

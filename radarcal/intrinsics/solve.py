@@ -292,6 +292,9 @@ def calibrate(
     after ``free_iterations`` rounds rejected corners and views stay rejected.
     View rule: more than ``max_outlier_fraction`` of its corners are outliers, or its inlier RMS exceeds
     ``view_rms_factor`` × the expected RMS (√2 σ). At least half of the views (and 3) are always kept.
+
+    Why one ~100-line function: it is one rejection loop whose state (per-corner inliers, used views, reasons, the
+    warm start, the frozen flag) every round reads and updates; split, each piece would pass those six around.
     """
     V = len(object_points)
     obj = [np.asarray(o, float).reshape(-1, 3) for o in object_points]

@@ -72,7 +72,11 @@ def _pnp(cam: Camera, obj: np.ndarray, img: np.ndarray) -> np.ndarray:
 
 @single_thread_blas
 def stereo_calibrate(cam0: Camera, cam1: Camera, object_points: list[np.ndarray], image_points0: list[np.ndarray], image_points1: list[np.ndarray], k_sigma: float = 4.0, refine_intrinsics: bool = True) -> StereoResult:
-    """Solve T_cam1_cam0. object_points[p] (N_p,3) are seen as image_points0[p] in cam0 and image_points1[p] in cam1."""
+    """Solve T_cam1_cam0. object_points[p] (N_p,3) are seen as image_points0[p] in cam0 and image_points1[p] in cam1.
+
+    Why one ~150-line function: the packed parameter vector ([θ0, θ1,] rel6, per-pair pose6) is laid out once here and
+    read by ``unpack``, by the residual, by its sparse Jacobian pattern and by the rejection rounds (closures over the
+    same layout); pulled apart, the layout would be restated in each piece."""
     n = len(object_points)
     if n < 1:
         raise ValueError("stereo needs at least one synchronised pair with the board in both images")

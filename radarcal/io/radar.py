@@ -33,18 +33,21 @@ from radarcal import geometry
 from radarcal.errors import InputError, read_text
 
 __all__ = [
-    "RadarDetections",
-    "read_radar_csv",
     "Ars408Objects",
-    "read_ars408_csv",
-    "is_ars408_csv",
-    "read_tudelft_example",
-    "read_tudelft_accumulator",
-    "RigConfig",
-    "read_rig_yaml",
-    "SessionScene",
+    "RadarDetections",
     "RadarSessionInput",
+    "RigConfig",
+    "SessionScene",
+    "is_ars408_csv",
+    "read_ars408_csv",
+    "read_opencalib_lidar2lidar",
+    "read_radar_csv",
     "read_radar_session",
+    "read_reflector_centres",
+    "read_rig_yaml",
+    "read_tudelft_accumulator",
+    "read_tudelft_example",
+    "read_tudelft_session",
 ]
 
 
@@ -156,7 +159,8 @@ def read_ars408_csv(path: str | os.PathLike) -> Ars408Objects:
     cols = {h: data[:, j] for j, h in enumerate(header)}
     tid = cols["track_id"].astype(int)
     scan = np.cumsum(np.r_[0, (np.diff(tid) < 0) | (tid[1:] == 0)]) if len(tid) else np.zeros(0, int)
-    g = lambda k: cols.get(k, np.full(len(tid), np.nan))  # noqa: E731
+    def g(k):
+        return cols.get(k, np.full(len(tid), np.nan))
     return Ars408Objects(cols, np.stack([cols["position_x"], cols["position_y"]], axis=1), g("rcs"), np.stack([g("velocity_x"), g("velocity_y")], axis=1), tid, scan, fixed, str(path))
 
 
@@ -214,6 +218,7 @@ class RigConfig:
     reference_radar: str
     reflector_offset: float = 0.0
     head_size: float = 0.35
+    reflector_edge: float | None = None  # trihedral edge (m) when known: plate fit and size checks
     range_gate: float = 4.0
     cluster_tol: float = 0.12
     ground_tol: float = 0.05
@@ -258,8 +263,8 @@ def read_rig_yaml(path: str | os.PathLike) -> RigConfig:
         raise InputError(path, "main_lidar: missing (and no lidars listed)")
     if main not in lidars:
         lidars = {main: {}, **lidars}
-    if not radars:
-        raise InputError(path, "radars: none listed")
+    if not radars and len(lidars) < 2:
+        raise InputError(path, "radars: none listed (and fewer than two LiDARs: nothing to calibrate)")
     init, heights = {}, {}
     for n, s in {**lidars, **radars}.items():
         s = s or {}
@@ -272,8 +277,8 @@ def read_rig_yaml(path: str | os.PathLike) -> RigConfig:
         if h is not None and not isinstance(h, (int, float)):
             raise InputError(path, f"radars.{n}.mount_height_m: expected a number, got {h!r}")
         heights[n] = None if h is None else float(h)
-    ref = d.get("reference_radar") or ("radar_middle" if "radar_middle" in radars else list(radars)[len(radars) // 2])
-    if ref not in radars:
+    ref = d.get("reference_radar") or ("radar_middle" if "radar_middle" in radars else (list(radars)[len(radars) // 2] if radars else ""))
+    if radars and ref not in radars:
         raise InputError(path, f"reference_radar {ref!r} is not one of the radars ({', '.join(radars)})")
     refl = d.get("reflector") or {}
     ext = d.get("extraction") or {}
@@ -292,16 +297,33 @@ def read_rig_yaml(path: str | os.PathLike) -> RigConfig:
         return (float(v[0]), float(v[1]))
 
     Tvm = _pose(d["T_vehicle_main"], path, "T_vehicle_main") if d.get("T_vehicle_main") is not None else None
-    return RigConfig(main, list(lidars), list(radars), heights, init, ref, f(refl, "offset_m", 0.0), f(refl, "head_size_m", 0.35), f(ext, "range_gate_m", 4.0),
+    edge = f(refl, "edge_m", 0.0) or None
+    return RigConfig(main, list(lidars), list(radars), heights, init, ref, f(refl, "offset_m", 0.0), f(refl, "head_size_m", 0.35), edge, f(ext, "range_gate_m", 4.0),
                      f(ext, "cluster_tol_m", 0.12), f(ext, "ground_tol_m", 0.05), rng2("forward_m", [0.0, 5.0]), rng2("lateral_m", [-5.0, 5.0]), Tvm, str(path))
 
 
 @dataclass
 class SessionScene:
+    """One reflector placement. ``clouds``: LiDAR name -> file (read by :meth:`cloud`, the one place clouds are read
+    here); ``centres``: LiDAR name -> (K,3) reflector centres given directly (TU Delft style; no cloud needed)."""
+
     name: str
     clouds: dict  # lidar -> Path
     detections: RadarDetections
     notes: list = field(default_factory=list)
+    centres: dict = field(default_factory=dict)  # lidar -> (K,3) reflector centres in that LiDAR's frame (m)
+    boards: dict = field(default_factory=dict)  # lidar -> ((M,K,3) board circle centres, reflector offset behind the board (m))
+
+    def cloud(self, lidar: str):
+        """The :class:`radarcal.io.clouds.Cloud` of ``lidar`` in this scene (``InputError`` when missing or empty)."""
+        from radarcal.io import read_cloud
+
+        if lidar not in self.clouds:
+            raise InputError(self.name, f"no cloud for LiDAR {lidar!r} in this scene")
+        c = read_cloud(self.clouds[lidar])
+        if len(c) == 0:
+            raise InputError(self.clouds[lidar], "empty point cloud")
+        return c
 
 
 @dataclass
@@ -309,24 +331,103 @@ class RadarSessionInput:
     root: Path
     rig: RigConfig
     scenes: list  # [SessionScene]
+    kind: str = "session"  # "session" (rig.yaml folder) | "tudelft" (board centres + radar CSVs) | "opencalib_lidar2lidar"
 
     def input_files(self) -> list[Path]:
-        out = [self.root / "rig.yaml"]
+        out = [Path(self.rig.path)] if self.rig.path else []
         for s in self.scenes:
             out += list(s.clouds.values())
             if s.detections.path:
                 out += [Path(p) for p in s.detections.path.split(os.pathsep)]
-        return out
+        return [p for p in dict.fromkeys(out) if p.is_file()]
+
+
+def _empty_detections() -> RadarDetections:
+    return RadarDetections(np.zeros(0, dtype=str), np.zeros((0, 2)), np.zeros(0), np.zeros(0), "")
+
+
+def read_reflector_centres(path: str | os.PathLike) -> dict:
+    """``reflectors.csv``: ``lidar,x,y,z`` rows (reflector centres in that LiDAR's frame, m; header optional)."""
+    path = Path(path)
+    text = read_text(path, encoding="utf-8-sig")
+    out: dict = {}
+    for ln, row in enumerate(csv.reader(_io.StringIO(text)), start=1):
+        if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
+            continue
+        row = [c.strip() for c in row]
+        if row[0].lower() == "lidar":
+            continue
+        if len(row) != 4:
+            raise InputError(path, f"line {ln}: expected lidar,x,y,z (4 fields), got {len(row)}")
+        out.setdefault(row[0], []).append([_num(v, path, ln, k) for v, k in zip(row[1:], "xyz")])
+    return {k: np.array(v, float) for k, v in out.items()}
+
+
+def read_tudelft_session(folder: Path, board_offset: float = 0.105) -> RadarSessionInput:
+    """The TU Delft example folder as shipped (``lidar.csv`` 3 x 4M board circle centres, ``radar.csv`` 2 x M): one
+    LiDAR ``lidar``, one radar ``radar`` (height unknown: estimated), reflector = board centre moved 0.105 m behind the
+    board; all M placements in one scene (each board is one reflector)."""
+    circles, rxy = read_tudelft_example(folder)
+    rig = RigConfig("lidar", ["lidar"], ["radar"], {"radar": None}, {}, "radar", path=str(folder / "lidar.csv"))
+    det = RadarDetections(np.full(len(rxy), "radar"), rxy, np.full(len(rxy), np.nan), np.full(len(rxy), np.nan), str(folder / "radar.csv"))
+    note = f"TU Delft example: {len(rxy)} board placements, reflector {board_offset:g} m behind each board's circle centres"
+    return RadarSessionInput(folder, rig, [SessionScene("boards", {}, det, [note], boards={"lidar": (circles, board_offset)})], "tudelft")
+
+
+def read_opencalib_lidar2lidar(folder: Path) -> RadarSessionInput:
+    """OpenCalib's ``lidar2lidar`` sample as shipped: ``initial_extrinsic.txt`` ((Roll,Pitch,Yaw,tx,ty,tz) per device,
+    degrees and metres, child -> device 0) and ``lidar_cloud_path.txt`` (device id -> cloud file); device 0 is the main
+    LiDAR. Sensor names are the cloud file stems."""
+    init_path, paths_path = folder / "initial_extrinsic.txt", folder / "lidar_cloud_path.txt"
+    guesses, dev = {}, None
+    for ln, line in enumerate(read_text(init_path).splitlines(), start=1):
+        if line.startswith("device_id"):
+            try:
+                dev = int(line.split(":")[1])
+            except (IndexError, ValueError):
+                raise InputError(init_path, f"line {ln}: bad device_id") from None
+        elif line.startswith("(Roll") and dev is not None:
+            vals = line.split(":", 1)[1].split()
+            if len(vals) != 6:
+                raise InputError(init_path, f"line {ln}: expected 6 numbers (roll pitch yaw tx ty tz)")
+            roll, pitch, yaw, tx, ty, tz = (_num(v, init_path, ln, "value") for v in vals)
+            guesses[dev] = geometry.T_from_xyz_rpy_deg(tx, ty, tz, roll, pitch, yaw)
+    files, dev = {}, None
+    for ln, line in enumerate(read_text(paths_path).splitlines(), start=1):  # "device_id: N" then "path: <file>"
+        key, _, val = line.partition(":")
+        if key.strip() == "device_id":
+            try:
+                dev = int(val)
+            except ValueError:
+                raise InputError(paths_path, f"line {ln}: bad device_id") from None
+        elif key.strip() == "path" and dev is not None:
+            files[dev] = folder / Path(val.strip()).name
+    if 0 not in files or len(files) < 2:
+        raise InputError(paths_path, "expected device ids 0 (main) and at least one more with their cloud files")
+    names = {d: p.stem for d, p in files.items()}
+    main = names[0]
+    init = {names[d]: T for d, T in guesses.items() if d in names and d != 0}
+    rig = RigConfig(main, [names[d] for d in sorted(files)], [], {}, init, "", path=str(init_path))
+    sc = SessionScene("0", {names[d]: p for d, p in files.items()}, _empty_detections(), [f"OpenCalib lidar2lidar sample: main LiDAR {main} (device 0)"])
+    return RadarSessionInput(folder, rig, [sc], "opencalib_lidar2lidar")
 
 
 def read_radar_session(folder: str | os.PathLike) -> RadarSessionInput:
-    """``rig.yaml`` + ``scenes/<k>/{<lidar>.pcd, radar.csv}``; a scene may instead hold ``<radar>.csv`` files in
-    the ARS408 object format (one per radar)."""
+    """A session folder: ``rig.yaml`` + ``scenes/<k>/{<lidar>.pcd | reflectors.csv, radar.csv | <radar>.csv}`` (a
+    scene may hold ARS408 object lists ``<radar>.csv`` instead of ``radar.csv``, reflector centres ``reflectors.csv``
+    instead of the main LiDAR's cloud, and no radar file at all in a LiDAR-only rig); or, recognised by their files,
+    the TU Delft example folder (``lidar.csv`` + ``radar.csv``) and OpenCalib's lidar2lidar sample
+    (``initial_extrinsic.txt``)."""
     from radarcal.io.clouds import CLOUD_SUFFIXES
 
     root = Path(folder)
     if not root.is_dir():
         raise InputError(root, "session folder not found")
+    if not (root / "rig.yaml").is_file():
+        if (root / "lidar.csv").is_file() and (root / "radar.csv").is_file():
+            return read_tudelft_session(root)
+        if (root / "initial_extrinsic.txt").is_file():
+            return read_opencalib_lidar2lidar(root)
     rig = read_rig_yaml(root / "rig.yaml")
     sdir = root / "scenes"
     if not sdir.is_dir():
@@ -339,8 +440,15 @@ def read_radar_session(folder: str | os.PathLike) -> RadarSessionInput:
                 if (d / f"{lid}{suf}").is_file():
                     clouds[lid] = d / f"{lid}{suf}"
                     break
-        if rig.main_lidar not in clouds:
-            raise InputError(d, f"no cloud for the main LiDAR {rig.main_lidar!r} ({rig.main_lidar}.pcd)")
+        centres = read_reflector_centres(d / "reflectors.csv") if (d / "reflectors.csv").is_file() else {}
+        unknown = sorted(set(centres) - set(rig.lidars))
+        if unknown:
+            raise InputError(d / "reflectors.csv", f"LiDAR name(s) {', '.join(unknown)} not in rig.yaml ({', '.join(rig.lidars)})")
+        if rig.main_lidar not in clouds and rig.main_lidar not in centres:
+            raise InputError(d, f"no cloud for the main LiDAR {rig.main_lidar!r} ({rig.main_lidar}.pcd) and no reflectors.csv")
+        for lid in rig.lidars:
+            if lid != rig.main_lidar and lid not in clouds and lid not in centres and any((e / f"{lid}{suf}").is_file() for e in sdir.iterdir() if e.is_dir() for suf in CLOUD_SUFFIXES):
+                raise InputError(d / f"{lid}.pcd", f"cloud of LiDAR {lid!r} missing in this scene (other scenes have one)")
         notes = []
         if (d / "radar.csv").is_file():
             det = read_radar_csv(d / "radar.csv")
@@ -358,11 +466,11 @@ def read_radar_session(folder: str | os.PathLike) -> RadarSessionInput:
                     if obj.header_fixed:
                         notes.append(f"{p.name}: {obj.header_fixed}")
                     parts.append(obj.as_detections(r))
-            if not parts:
+            if not parts and rig.radars:
                 raise InputError(d, "no radar.csv (radar,x,y[,rcs,velocity]) and no <radar>.csv ARS408 lists")
             det = RadarDetections(np.concatenate([p.radar for p in parts]), np.concatenate([p.xy for p in parts]), np.concatenate([p.rcs for p in parts]),
-                                  np.concatenate([p.velocity for p in parts]), os.pathsep.join(p.path for p in parts))
-        scenes.append(SessionScene(d.name, clouds, det, notes))
+                                  np.concatenate([p.velocity for p in parts]), os.pathsep.join(p.path for p in parts)) if parts else _empty_detections()
+        scenes.append(SessionScene(d.name, clouds, det, notes, centres))
     if not scenes:
         raise InputError(sdir, "no scene folders")
     return RadarSessionInput(root, rig, scenes)

@@ -10,8 +10,8 @@ from typing import Sequence
 import numpy as np
 
 from radarcal.camera import Camera
-from radarcal.extrinsics.refine import PARAM_NAMES  # one definition of the pose parameters (re-exported)
-from radarcal.extrinsics.refine import parameter_profiles as cost_profiles  # the one profile evaluator (re-exported)
+from radarcal.extrinsics.pose_params import PARAM_NAMES  # one definition of the pose parameters (re-exported)
+from radarcal.extrinsics.pose_params import parameter_profiles as cost_profiles  # the one profile evaluator (re-exported)
 from radarcal.report._common import new_figure, show_image
 
 __all__ = [

@@ -1,35 +1,53 @@
-"""Robot detection: a YOLOv5-style ONNX model through onnxruntime, or precomputed boxes from a JSON-lines file.
+"""Robot detection: YOLO-family ONNX models through onnxruntime (layouts in :mod:`radarcal.runtime.yolo_layouts`),
+or precomputed boxes from a JSON-lines file.
 
-YOLOv5 export convention (``export.py --include onnx``): input ``images`` 1x3xSxS float32 RGB in 0..1 after a
-letterbox (aspect kept, grey 114 padding centred); output 1xNx(5+C) with rows ``cx cy w h objectness cls_1..cls_C``
-in letterboxed pixels, already sigmoid-activated; class names in the model metadata ``names`` (a Python dict
-literal ``{0: 'red_1', ...}``). Score = objectness x class probability.
+Input convention of every YOLO export: one N x 3 x H x W float image input (RGB, 0..1) after a letterbox (aspect
+kept, grey 114 padding centred). Class names come from ``--names`` (YOLO ``data.yaml``, a text file one per line,
+a JSON/YAML list or ``{id: name}`` mapping) or the model metadata ``names`` (YOLOv5 and ultralytics write
+``{0: 'red_1', ...}``). Optional second and third stages (armour on robot crops, number on armour crops) are in
+:mod:`radarcal.runtime.stages`.
 """
 
 from __future__ import annotations
 
-import ast
 import json
 import os
+import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from radarcal.errors import InputError
+from radarcal.runtime.yolo_layouts import Layout, UnknownLayout, decode_batch, decode_v5_rows, detect_layout, nms, parse_meta_value, read_anchor_config
 
-__all__ = ["Detection", "letterbox", "decode_yolov5", "nms", "OnnxDetector", "DetectionsFile", "read_class_names"]
+__all__ = ["Detection", "letterbox", "decode_yolov5", "nms", "OnnxDetector", "OnnxModel", "DetectionsFile", "read_class_names", "resolve_providers"]
 
 
 @dataclass
 class Detection:
+    """One robot in image pixels. ``dead``: its armour is grey (tracked, never sent as a target); ``armour_label`` /
+    ``number_label``: what the armour and number stages said (None without them)."""
+
     xyxy: np.ndarray  # (4,) image pixels
     label: str
     score: float
     class_id: int = -1
+    dead: bool = False
+    armour_label: str | None = None
+    number_label: str | None = None
+    armour_xyxy: np.ndarray | None = None  # (4,) image pixels
 
     def to_dict(self) -> dict:
-        return {"xyxy": [round(float(v), 2) for v in self.xyxy], "label": self.label, "score": round(float(self.score), 4)}
+        d = {"xyxy": [round(float(v), 2) for v in self.xyxy], "label": self.label, "score": round(float(self.score), 4)}
+        if self.dead:
+            d["dead"] = True
+        if self.armour_label is not None:
+            d["armour"] = self.armour_label
+        if self.number_label is not None:
+            d["number"] = self.number_label
+        return d
 
 
 def letterbox(img: np.ndarray, size: int | tuple[int, int] = 640, color: int = 114) -> tuple[np.ndarray, float, tuple[float, float]]:
@@ -40,32 +58,15 @@ def letterbox(img: np.ndarray, size: int | tuple[int, int] = 640, color: int = 1
     th, tw = (size, size) if isinstance(size, int) else size
     h, w = img.shape[:2]
     r = min(th / h, tw / w)
-    nw, nh = int(round(w * r)), int(round(h * r))
+    nw, nh = max(int(round(w * r)), 1), max(int(round(h * r)), 1)
     dw, dh = (tw - nw) / 2.0, (th - nh) / 2.0
     if (nw, nh) != (w, h):
         img = cv2.resize(img, (nw, nh), interpolation=cv2.INTER_LINEAR)
     top, bottom = int(round(dh - 0.1)), int(round(dh + 0.1))
     left, right = int(round(dw - 0.1)), int(round(dw + 0.1))
-    out = cv2.copyMakeBorder(img, top, bottom, left, right, cv2.BORDER_CONSTANT, value=(color, color, color))
+    value = (color,) * (img.shape[2] if img.ndim == 3 else 1)
+    out = cv2.copyMakeBorder(img, top, bottom, left, right, cv2.BORDER_CONSTANT, value=value)
     return out, r, (float(left), float(top))
-
-
-def nms(boxes: np.ndarray, scores: np.ndarray, iou_thres: float) -> np.ndarray:
-    """Greedy NMS over (N,4) xyxy boxes; indices kept, highest score first (IoU vectorised per kept box)."""
-    order = np.argsort(-scores, kind="stable")
-    x1, y1, x2, y2 = boxes.T
-    area = np.maximum(x2 - x1, 0) * np.maximum(y2 - y1, 0)
-    keep = []
-    while order.size:
-        i = order[0]
-        keep.append(i)
-        rest = order[1:]
-        iw = np.clip(np.minimum(x2[i], x2[rest]) - np.maximum(x1[i], x1[rest]), 0, None)
-        ih = np.clip(np.minimum(y2[i], y2[rest]) - np.maximum(y1[i], y1[rest]), 0, None)
-        inter = iw * ih
-        iou = inter / np.maximum(area[i] + area[rest] - inter, 1e-12)
-        order = rest[iou <= iou_thres]
-    return np.asarray(keep, dtype=np.int64)
 
 
 def decode_yolov5(pred: np.ndarray, conf_thres: float = 0.25, iou_thres: float = 0.45, max_det: int = 300) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -76,23 +77,12 @@ def decode_yolov5(pred: np.ndarray, conf_thres: float = 0.25, iou_thres: float =
         pred = pred[0]
     if pred.ndim != 2 or pred.shape[1] < 6:
         raise ValueError(f"expected a (N, 5+C) YOLOv5 output, got {pred.shape}")
-    pred = pred[pred[:, 4] > conf_thres]
-    if not len(pred):
-        return np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64)
-    cls_scores = pred[:, 5:] * pred[:, 4:5]
-    cls = np.argmax(cls_scores, axis=1)
-    score = cls_scores[np.arange(len(pred)), cls]
-    ok = score > conf_thres
-    pred, cls, score = pred[ok], cls[ok], score[ok]
-    cx, cy, w, h = pred[:, 0], pred[:, 1], pred[:, 2], pred[:, 3]
-    boxes = np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], axis=1)
-    offset = cls[:, None].astype(np.float32) * 8192.0  # class-aware NMS: shift each class to its own region
-    keep = nms(boxes + offset, score, iou_thres)[:max_det]
-    return boxes[keep], score[keep], cls[keep]
+    return decode_v5_rows(pred, conf_thres, iou_thres, max_det)
 
 
 def read_class_names(path: str | os.PathLike) -> list[str]:
-    """Class names from a text file (one per line), JSON/YAML list, or a ``{id: name}`` mapping."""
+    """Class names from YOLO ``data.yaml`` (``names:`` list or ``{id: name}``, checked against ``nc:``), a JSON/YAML
+    list or mapping, or a text file (one name per line; ``id name`` lines are accepted)."""
     from radarcal.errors import read_text
 
     path = Path(path)
@@ -104,15 +94,21 @@ def read_class_names(path: str | os.PathLike) -> list[str]:
             data = yaml.safe_load(text)
         except yaml.YAMLError:
             raise InputError(path, "class names: not valid YAML/JSON") from None
+        nc = data.get("nc") if isinstance(data, dict) else None
         if isinstance(data, dict) and "names" in data:
             data = data["names"]
         names = _names_from(data)
-        if names is None:
-            raise InputError(path, "class names: expected a list or an {id: name} mapping")
+        if not names:
+            raise InputError(path, "class names: expected a list, an {id: name} mapping or a data.yaml with names:")
+        if nc is not None and int(nc) != len(names):
+            raise InputError(path, f"nc: {nc} but {len(names)} names")
         return names
-    names = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    names = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not names:
         raise InputError(path, "class names file is empty")
+    split = [n.split(None, 1) for n in names]
+    if all(len(p) == 2 and p[0].isdigit() for p in split) and [int(p[0]) for p in split] == list(range(len(split))):
+        names = [p[1].strip() for p in split]  # "0 red_1" lines
     return names
 
 
@@ -121,81 +117,238 @@ def _names_from(data) -> list[str] | None:
         return [str(v) for v in data]
     if isinstance(data, dict):
         try:
-            return [str(data[k]) for k in sorted(data, key=int)]
+            keys = sorted(data, key=int)
         except (TypeError, ValueError):
             return None
+        if [int(k) for k in keys] != list(range(len(keys))):
+            return None
+        return [str(data[k]) for k in keys]
     return None
 
 
-class OnnxDetector:
-    """YOLOv5-style ONNX detector. ``threads`` sets onnxruntime's intra-op threads; ``spin`` lets them busy-wait
-    (slightly lower latency on a dedicated machine, wasted CPU on a shared one)."""
+# --- onnxruntime sessions ----------------------------------------------------------------------------------------------
+PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider", "trt": "TensorrtExecutionProvider",
+             "openvino": "OpenVINOExecutionProvider", "dml": "DmlExecutionProvider", "coreml": "CoreMLExecutionProvider"}  # fmt: skip
+_NOTES_SHOWN: set[str] = set()
 
-    def __init__(self, model_path: str | os.PathLike, class_names: list[str] | None = None, conf_thres: float = 0.25, iou_thres: float = 0.45, threads: int = 0, spin: bool = False):
+
+def resolve_providers(spec: str | list[str] | None) -> tuple[list[str], list[str]]:
+    """(providers onnxruntime has, in the order asked, CPU last; the ones asked for but missing) from
+    ``"tensorrt,cuda,cpu"``-style text. Unknown names raise InputError."""
+    import onnxruntime as ort
+
+    items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else (spec or ["cpu"])) if s.strip()]
+    want = []
+    for s in items:
+        p = PROVIDERS.get(s.lower(), s if s.endswith("ExecutionProvider") else None)
+        if p is None:
+            raise InputError("--providers", f"unknown provider {s!r} (cpu, cuda, tensorrt, openvino, dml, coreml)")
+        if p not in want:
+            want.append(p)
+    have = set(ort.get_available_providers())
+    use = [p for p in want if p in have and p != "CPUExecutionProvider"] + ["CPUExecutionProvider"]
+    return use, [p for p in want if p not in have]
+
+
+def _note(msg: str) -> None:
+    if msg not in _NOTES_SHOWN:
+        _NOTES_SHOWN.add(msg)
+        sys.stderr.write(msg + "\n")
+
+
+class OnnxModel:
+    """An onnxruntime session on one image-input model, with the checks every stage needs: the file is ONNX, the
+    input is N x C x H x W (C = ``channels``), the providers asked for exist (else a one-line note and CPU).
+
+    ``threads``: intra-op threads (0 = onnxruntime's default, one per core); ``spin``: let them busy-wait (slightly
+    lower latency on a dedicated machine, CPU stolen from everything else on a shared one)."""
+
+    def __init__(self, path: str | os.PathLike, what: str = "ONNX model", threads: int = 0, spin: bool = False, providers=None,
+                 channels: tuple[int, ...] = (3,), default_size: int = 640):  # fmt: skip
         import onnxruntime as ort
 
-        self.path = Path(model_path)
+        self.path = Path(path)
         if not self.path.is_file():
-            raise InputError(self.path, "ONNX model not found")
+            raise InputError(self.path, f"{what} not found")
         so = ort.SessionOptions()
         if threads:
             so.intra_op_num_threads = int(threads)
+        so.inter_op_num_threads = 1
         so.log_severity_level = 3
         if not spin:  # idle worker threads sleep instead of spinning: no CPU stolen from the rest of the loop / machine
             so.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        use, missing = resolve_providers(providers)
+        if missing:
+            _note(f"note: onnxruntime {ort.__version__} has no {', '.join(missing)} (install onnxruntime-gpu with matching CUDA/TensorRT); "
+                  f"running {self.path.name} on {', '.join(p.replace('ExecutionProvider', '') for p in use)}")  # fmt: skip
+        opts = []
+        for p in use:
+            if p == "TensorrtExecutionProvider":  # engines are slow to build: cache them next to the model
+                opts.append({"trt_engine_cache_enable": "True", "trt_engine_cache_path": str(self.path.parent), "trt_fp16_enable": "True"})
+            else:
+                opts.append({})
         try:
-            self.session = ort.InferenceSession(str(self.path), so, providers=["CPUExecutionProvider"])
+            with open(self.path, "rb") as f:
+                head = f.read(64)
+            if not head or head.lstrip()[:1] in (b"{", b"<", b"#") or head[:4] in (b"\x89PNG", b"PK\x03\x04"):
+                raise ValueError("not an ONNX protobuf")
+            self.session = ort.InferenceSession(str(self.path), so, providers=use, provider_options=opts)
         except Exception as e:  # noqa: BLE001 - onnxruntime raises its own exception types
-            raise InputError(self.path, f"cannot load ONNX model ({str(e).splitlines()[0][:120]})") from None
+            msg = str(e).strip().splitlines()[0][:120] if str(e).strip() else e.__class__.__name__
+            raise InputError(self.path, f"cannot load {what} ({msg})") from None
+        got = self.session.get_providers()
+        lost = [p for p in use if p not in got]
+        if lost:
+            _note(f"note: {', '.join(lost)} failed to start for {self.path.name} (CUDA/TensorRT libraries?); running on {', '.join(got)}")
+        self.providers = got
+        self.meta = {k: parse_meta_value(v) for k, v in self.session.get_modelmeta().custom_metadata_map.items()}
         inp = self.session.get_inputs()[0]
         self.input_name = inp.name
-        shape = inp.shape
-        h = shape[2] if isinstance(shape[2], int) else 640
-        w = shape[3] if isinstance(shape[3], int) else 640
-        self.input_size = (int(h), int(w))
-        out = self.session.get_outputs()[0]
-        self.output_name = out.name
-        meta = self.session.get_modelmeta().custom_metadata_map
-        names = class_names
-        if names is None and "names" in meta:
-            try:
-                names = _names_from(ast.literal_eval(meta["names"]))
-            except (ValueError, SyntaxError):
-                try:
-                    names = _names_from(json.loads(meta["names"]))
-                except ValueError:
-                    names = None
-        self.class_names = list(names) if names else []
-        if not self.class_names and isinstance(out.shape[-1], int):
-            self.class_names = [f"class_{i}" for i in range(int(out.shape[-1]) - 5)]
+        shape = list(inp.shape)
+        self.inputs = [(i.name, list(i.shape)) for i in self.session.get_inputs()]
+        self.outputs = [(o.name, list(o.shape)) for o in self.session.get_outputs()]
+        self.output_names = [o.name for o in self.session.get_outputs()]
+        if len(shape) != 4:
+            raise InputError(self.path, f"{what}: input {inp.name} has rank {len(shape)} ({'x'.join(map(str, shape))}); expected an N x C x H x W image")
+        c = shape[1] if isinstance(shape[1], int) else channels[-1]
+        if c not in channels:
+            raise InputError(self.path, f"{what}: input {inp.name} has {c} channels ({'x'.join(map(str, shape))}); expected {' or '.join(map(str, channels))}")
+        self.channels = int(c)
+        imgsz = self.meta.get("imgsz")
+        if isinstance(imgsz, int):
+            imgsz = [imgsz, imgsz]
+        dh = int(imgsz[0]) if isinstance(imgsz, (list, tuple)) and imgsz else default_size
+        dw = int(imgsz[-1]) if isinstance(imgsz, (list, tuple)) and imgsz else default_size
+        self.input_size = (int(shape[2]) if isinstance(shape[2], int) else dh, int(shape[3]) if isinstance(shape[3], int) else dw)
+        self.batch = int(shape[0]) if isinstance(shape[0], int) and shape[0] > 0 else None  # None: any batch
+        self.dtype = np.float16 if "float16" in inp.type else np.float32
+
+    def run_batch(self, x: np.ndarray) -> list[list[np.ndarray]]:
+        """Run ``x`` (n x C x H x W float32, 0..1) in as few calls as the input's batch size allows; the outputs of
+        each call (a fixed batch is padded with zeros, its extra rows ignored by the caller)."""
+        n = len(x)
+        step = self.batch or max(n, 1)
+        runs = []
+        for s in range(0, max(n, 1), step):
+            chunk = x[s : s + step]
+            if self.batch and len(chunk) < self.batch:
+                chunk = np.concatenate([chunk, np.zeros((self.batch - len(chunk),) + chunk.shape[1:], chunk.dtype)])
+            runs.append((min(step, n - s), self.session.run(self.output_names, {self.input_name: chunk.astype(self.dtype, copy=False)})))
+        return runs
+
+
+def to_tensor(images: list[np.ndarray], channels: int = 3) -> np.ndarray:
+    """BGR uint8 images of one size -> n x C x H x W float32 in 0..1 (RGB, or grey for C = 1). One scaled copy per
+    channel plane (6x faster than a transposed ``astype`` of the whole stack)."""
+    import cv2
+
+    h, w = images[0].shape[:2]
+    x = np.empty((len(images), channels, h, w), np.float32)
+    for i, im in enumerate(images):
+        if channels == 1:
+            g = im if im.ndim == 2 else cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
+            np.multiply(g, 1.0 / 255.0, out=x[i, 0], casting="unsafe")
+        elif im.ndim == 2:  # a mono camera's frame into a colour model: the same plane three times
+            np.multiply(im, 1.0 / 255.0, out=x[i, 0], casting="unsafe")
+            x[i, 1:] = x[i, 0]
+        else:
+            for c in range(3):  # RGB planes from BGR
+                np.multiply(im[:, :, 2 - c], 1.0 / 255.0, out=x[i, c], casting="unsafe")
+    return x
+
+
+class OnnxDetector:
+    """A YOLO-family ONNX detector: any layout of :mod:`radarcal.runtime.yolo_layouts`, detected from the graph or
+    forced with ``layout``; ``detector(image) -> [Detection]``, ``detector([images]) -> [[Detection], ...]`` (one
+    batched run when the model's batch dimension allows). ``last_timings_ms``: preprocess / infer / decode of the last
+    call. ``names_source``: the file the names came from (named in a class-count error)."""
+
+    def __init__(self, model_path: str | os.PathLike, class_names: list[str] | None = None, conf_thres: float = 0.25, iou_thres: float = 0.45,
+                 threads: int = 0, spin: bool = False, layout: str | None = None, providers=None, anchors: dict | None = None,
+                 names_source: str | os.PathLike | None = None, max_det: int = 300, what: str = "ONNX model"):  # fmt: skip
+        self.model = OnnxModel(model_path, what, threads, spin, providers)
+        self.path = self.model.path
+        self.session = self.model.session
+        self.input_name = self.model.input_name
+        self.input_size = self.model.input_size
+        meta_names = _names_from(self.model.meta.get("names"))
+        nc_hint = len(class_names) if class_names else (len(meta_names) if meta_names else None)
+        try:
+            self.layout: Layout = detect_layout(self.model.inputs, self.model.outputs, self.model.meta, nc_hint, layout)
+        except UnknownLayout as e:
+            raise InputError(self.path, str(e)) from None
+        if self.layout.name == "raw":
+            self.layout.anchors, self.layout.strides, self.layout.sigmoid = read_anchor_config(anchors)
+        names = list(class_names) if class_names else (meta_names or [])
+        nc = self.layout.nc
+        if names and nc is not None and len(names) != nc:
+            src = names_source if class_names else self.path
+            raise InputError(src, f"{len(names)} class names but {self.path.name} has {nc} classes ({self.layout.name} layout, output "
+                                  f"{'x'.join(map(str, self.model.outputs[0][1]))})")  # fmt: skip
+        if not names and nc is not None:
+            names = [f"class_{i}" for i in range(nc)]
+        self.class_names = names
         self.conf_thres = conf_thres
         self.iou_thres = iou_thres
+        self.max_det = max_det
+        self.last_timings_ms: dict[str, float] = {}
 
-    def preprocess(self, img_bgr: np.ndarray) -> tuple[np.ndarray, float, tuple[float, float]]:
-        lb, r, pad = letterbox(img_bgr, self.input_size)
-        x = lb[:, :, ::-1].transpose(2, 0, 1)[None].astype(np.float32) * (1.0 / 255.0)
-        return np.ascontiguousarray(x), r, pad
+    def describe(self) -> str:
+        lay = self.layout.name + (f"/{self.layout.variant}" if self.layout.variant else "")
+        return f"{self.path.name}: {lay}, input {self.input_size[1]}x{self.input_size[0]}, {len(self.class_names)} classes, {'/'.join(p.replace('ExecutionProvider', '') for p in self.model.providers)}"
 
-    def __call__(self, img_bgr: np.ndarray) -> list[Detection]:
-        x, r, pad = self.preprocess(img_bgr)
-        pred = self.session.run([self.output_name], {self.input_name: x})[0]
-        return self.postprocess(pred, r, pad, img_bgr.shape[:2])
+    def preprocess(self, images: list[np.ndarray]) -> tuple[np.ndarray, list[tuple[float, tuple[float, float], tuple[int, int]]]]:
+        import cv2
 
-    def postprocess(self, pred: np.ndarray, r: float, pad: tuple[float, float], hw: tuple[int, int]) -> list[Detection]:
-        boxes, scores, cls = decode_yolov5(pred, self.conf_thres, self.iou_thres)
-        boxes = (boxes - np.array([pad[0], pad[1], pad[0], pad[1]], np.float32)) / r
+        lbs, geo = [], []
+        for im in images:
+            if im.ndim == 3 and im.shape[2] != 3:  # BGRA / single-channel 3-D frames
+                im = cv2.cvtColor(im, cv2.COLOR_BGRA2BGR) if im.shape[2] == 4 else im[:, :, 0]
+            lb, r, pad = letterbox(im, self.input_size)
+            lbs.append(lb)
+            geo.append((r, pad, im.shape[:2]))
+        return to_tensor(lbs, self.model.channels), geo
+
+    def __call__(self, images):
+        if isinstance(images, np.ndarray) and (images.ndim == 2 or (images.ndim == 3 and images.shape[2] in (1, 3, 4))):
+            return self.detect_batch([images])[0]
+        return self.detect_batch(list(images))
+
+    def detect_batch(self, images: list[np.ndarray]) -> list[list[Detection]]:
+        t0 = time.perf_counter()
+        if not images:
+            self.last_timings_ms = {"preprocess": 0.0, "infer": 0.0, "decode": 0.0}
+            return []
+        x, geo = self.preprocess(images)
+        t1 = time.perf_counter()
+        runs = self.model.run_batch(x)
+        t2 = time.perf_counter()
+        decoded = []
+        try:
+            for n, outs in runs:
+                decoded += decode_batch(outs, self.layout, n, self.input_size, self.conf_thres, self.iou_thres, self.max_det)
+        except (ValueError, IndexError, KeyError) as e:
+            raise InputError(self.path, f"output does not fit the {self.layout.name} layout ({e})") from None
+        out = [self.postprocess(b, s, c, *g) for (b, s, c), g in zip(decoded, geo)]
+        self.last_timings_ms = {"preprocess": (t1 - t0) * 1e3, "infer": (t2 - t1) * 1e3, "decode": (time.perf_counter() - t2) * 1e3}
+        return out
+
+    def postprocess(self, boxes, scores, cls, r: float, pad: tuple[float, float], hw: tuple[int, int]) -> list[Detection]:
+        """Letterbox pixels -> image pixels (clipped to the image), labels from the class names."""
+        boxes = (np.asarray(boxes, np.float32) - np.array([pad[0], pad[1], pad[0], pad[1]], np.float32)) / r
         boxes[:, [0, 2]] = boxes[:, [0, 2]].clip(0, hw[1] - 1)
         boxes[:, [1, 3]] = boxes[:, [1, 3]].clip(0, hw[0] - 1)
         out = []
         for b, s, c in zip(boxes, scores, cls):
-            label = self.class_names[c] if c < len(self.class_names) else f"class_{c}"
-            out.append(Detection(b.astype(np.float64), label, float(s), int(c)))
+            c = int(c)
+            label = self.class_names[c] if 0 <= c < len(self.class_names) else f"class_{c}"
+            out.append(Detection(b.astype(np.float64), label, float(s), c))
         return out
 
 
 @dataclass
 class DetectionsFile:
-    """Precomputed detections: one JSON line per frame ``{"t", "frame"?, "boxes": [{"xyxy", "label", "score"}]}``.
+    """Precomputed detections: one JSON line per frame ``{"t", "frame"?, "boxes": [{"xyxy", "label", "score", "dead"?}]}``.
 
     Lookup by frame name when given, else by the nearest time within ``tol`` seconds."""
 
@@ -218,7 +371,8 @@ class DetectionsFile:
             try:
                 d = json.loads(line)
                 t = float(d["t"])
-                dets = [Detection(np.asarray(b["xyxy"], float).reshape(4), str(b.get("label", "")), float(b.get("score", 1.0))) for b in d.get("boxes", [])]
+                dets = [Detection(np.asarray(b["xyxy"], float).reshape(4), str(b.get("label", "")), float(b.get("score", 1.0)), dead=bool(b.get("dead", False)),
+                                  armour_label=b.get("armour"), number_label=b.get("number")) for b in d.get("boxes", [])]  # fmt: skip
                 if not (np.isfinite(t) and all(np.all(np.isfinite(x.xyxy)) and np.isfinite(x.score) for x in dets)):
                     raise ValueError("non-finite time, box or score")
             except (ValueError, KeyError, TypeError, AttributeError) as e:

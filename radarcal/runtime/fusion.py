@@ -21,7 +21,7 @@ import numpy as np
 from radarcal.camera import Camera
 from radarcal.geometry import transform_points
 
-__all__ = ["DepthImage", "BoxDepth", "make_depth_image", "robust_depth", "CloudQueue", "SurfaceFilter"]
+__all__ = ["DepthImage", "BoxDepth", "make_depth_image", "depth_image_from_camera_points", "robust_depth", "CloudQueue", "SurfaceFilter"]
 
 
 @dataclass
@@ -67,10 +67,17 @@ class DepthImage:
 def make_depth_image(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.ndarray, t: float = 0.0, min_depth: float = 0.3) -> DepthImage:
     """Project a cloud into the camera and keep the nearest z per pixel (pixel centres at integer coordinates)."""
     pts = np.asarray(points_lidar, np.float32).reshape(-1, 3)
+    return depth_image_from_camera_points(camera, transform_points(T_cam_lidar, pts), t, min_depth)
+
+
+def depth_image_from_camera_points(camera: Camera, p_cam: np.ndarray, t: float = 0.0, min_depth: float = 0.3, n_points: int | None = None) -> DepthImage:
+    """The depth image of points already in the camera frame (m); ``n_points``: what the image counts against the
+    queue's budget (default: these points)."""
+    p_cam = np.asarray(p_cam).reshape(-1, 3)
+    n = len(p_cam) if n_points is None else int(n_points)
     w, h = camera.image_size
-    if not len(pts):
-        return DepthImage(t, np.zeros(0, np.int64), np.zeros(0, np.float32), 0, w, h)
-    p_cam = transform_points(T_cam_lidar, pts)
+    if not len(p_cam):
+        return DepthImage(t, np.zeros(0, np.int64), np.zeros(0, np.float32), n, w, h)
     front = p_cam[:, 2] > min_depth
     p_cam = p_cam[front]
     uv, valid = camera.project(p_cam)
@@ -88,7 +95,7 @@ def make_depth_image(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.n
         first[0] = True
         np.not_equal(lin_sorted[1:], lin_sorted[:-1], out=first[1:])
     depth = (key[first] & 0xFFFFFFFF).astype(np.uint32).view(np.float32)
-    return DepthImage(t, lin_sorted[first], depth, len(pts), w, h)
+    return DepthImage(t, lin_sorted[first], depth, n, w, h)
 
 
 class SurfaceFilter:
@@ -145,7 +152,10 @@ class SurfaceFilter:
 
     def __call__(self, points_lidar: np.ndarray) -> np.ndarray:
         """Mask of the points to keep (above the surface by ``min_height`` and outside every structure)."""
-        p = transform_points(self.T, np.asarray(points_lidar, np.float32))
+        return self.keep_field(transform_points(self.T, np.asarray(points_lidar, np.float32)))
+
+    def keep_field(self, p: np.ndarray) -> np.ndarray:
+        """The same mask from points already in the field frame (m)."""
         keep = self._heights(p) > self.min_height
         for c, half, cs, sn in self.structures:
             dx, dy = p[:, 0] - c[0], p[:, 1] - c[1]
@@ -160,8 +170,8 @@ class BoxDepth:
     sigma: float  # standard error of that depth (m)
     n: int  # points in the chosen cluster
     n_box: int  # points in the box of the image used
-    age_s: float  # query time - time of the cloud the depth came from
-    images_used: int  # depth images consulted (1 = newest)
+    age_s: float  # query time - time of the oldest cloud whose points the depth came from
+    images_used: int  # depth images consulted within the age limit (1 = newest)
 
 
 def robust_depth(values: np.ndarray, min_points: int = 3, min_fraction: float = 0.15, gap_m: float = 0.35, gap_rel: float = 0.03) -> tuple[float, float, int] | None:
@@ -191,12 +201,19 @@ def robust_depth(values: np.ndarray, min_points: int = 3, min_fraction: float = 
 
 
 class CloudQueue:
-    """The last clouds as depth images, bounded by ``max_points`` (sum of cloud sizes) and ``max_age_s``."""
+    """The last clouds as depth images, bounded by ``max_points`` (sum of cloud sizes) and ``max_age_s``.
+
+    ``point_filter``: points (LiDAR frame) -> keep mask; a :class:`SurfaceFilter` (anything with ``keep_field`` and
+    its ``T`` = ``T_field_lidar``) is applied to field-frame points that come out of the same single matrix product
+    as the camera-frame ones, so each cloud is transformed once."""
 
     def __init__(self, camera: Camera, T_cam_lidar: np.ndarray, max_points: int = 200_000, max_age_s: float = 1.0, min_box_points: int = 3, point_filter=None):
-        self.point_filter = point_filter  # e.g. a SurfaceFilter: points -> keep mask
+        self.point_filter = point_filter
         self.camera = camera
         self.T_cam_lidar = np.asarray(T_cam_lidar, float)
+        self._keep_field = getattr(point_filter, "keep_field", None)
+        if self._keep_field is not None:  # rows 0-2: camera frame, rows 3-5: field frame
+            self._stacked = np.vstack([self.T_cam_lidar[:3], np.asarray(point_filter.T, float)[:3]])
         self.max_points = int(max_points)
         self.max_age_s = float(max_age_s)
         self.min_box_points = int(min_box_points)
@@ -208,11 +225,16 @@ class CloudQueue:
         return len(self.images)
 
     def push(self, t: float, points_lidar: np.ndarray) -> DepthImage:
-        n = len(points_lidar)
-        if self.point_filter is not None and n:
-            points_lidar = points_lidar[self.point_filter(points_lidar)]
-        img = make_depth_image(self.camera, self.T_cam_lidar, points_lidar, t)
-        img.n_points = n  # the budget counts what the sensor delivered
+        pts = np.asarray(points_lidar, np.float32).reshape(-1, 3)
+        n = len(pts)  # the budget counts what the sensor delivered
+        if self._keep_field is not None and n:
+            both = pts @ self._stacked[:, :3].T.astype(np.float32) + self._stacked[:, 3].astype(np.float32)
+            p_cam = both[:, :3][self._keep_field(both[:, 3:])]
+        else:
+            if self.point_filter is not None and n:
+                pts = pts[self.point_filter(pts)]
+            p_cam = transform_points(self.T_cam_lidar, pts)
+        img = depth_image_from_camera_points(self.camera, p_cam, t, n_points=n)
         self.images.append(img)
         self.points += img.n_points
         self.expire(t)
@@ -248,6 +270,7 @@ class CloudQueue:
         pooled = []
         n = 0
         used = 0
+        oldest_t = t_now  # time of the oldest image that gave points (not of an expired one the loop stopped at)
         limit = self.max_age_s if max_age_s is None else min(float(max_age_s), self.max_age_s)
         for img in reversed(self.images):
             if t_now - img.t > limit:
@@ -257,13 +280,13 @@ class CloudQueue:
             if len(vals):
                 pooled.append(vals)
                 n += len(vals)
+                oldest_t = img.t
                 if n >= self.min_box_points:
                     break
         if not n:
             return None
-        vals = np.concatenate(pooled)
-        r = robust_depth(vals)
+        r = robust_depth(np.concatenate(pooled))
         if r is None:
             return None
         depth, sigma, k = r
-        return BoxDepth(depth, sigma, k, n, t_now - img.t, used)
+        return BoxDepth(depth, sigma, k, n, t_now - oldest_t, used)

@@ -303,7 +303,12 @@ def raycast(field_model: FieldModel, boxes: SceneBoxes, origins: np.ndarray, dir
     o = np.asarray(origins, float).reshape(-1, 3)
     d = np.asarray(dirs, float).reshape(-1, 3)
     o = np.broadcast_to(o, d.shape) if len(o) == 1 else o
-    tf, area = field_model.ray_hits(o, d)
+    nmesh = None
+    if field_model.mesh is not None:  # a mesh-backed field: exact triangles (open3d), the whole mesh is object 0
+        tf, nmesh = field_model.raycast_exact(o, d)
+        area = np.full(len(tf), -1, dtype=np.int64)
+    else:
+        tf, area = field_model.ray_hits(o, d)
     tf = np.where(np.isnan(tf), np.inf, tf)
     tb, jb, nb = _ray_boxes(o, d, boxes)
     use_box = tb < tf
@@ -315,7 +320,7 @@ def raycast(field_model: FieldModel, boxes: SceneBoxes, origins: np.ndarray, dir
     if not normals:
         return t, obj
     p = o + np.nan_to_num(t)[:, None] * d
-    nf = _surface_normals(field_model, p, np.where(use_box, -2, area))
+    nf = _surface_normals(field_model, p, np.where(use_box, -2, area)) if nmesh is None else np.nan_to_num(nmesh)
     nrm = np.where(use_box[:, None], nb, nf)
     flip = np.sum(nrm * d, axis=1) > 0
     nrm[flip] *= -1

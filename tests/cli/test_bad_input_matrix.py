@@ -17,7 +17,7 @@ import json
 import os
 import shutil
 import stat
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -85,8 +85,15 @@ TABLE: dict[str, Cmd] = {
                 Opt("--detector", "onnx", skip=("nan", "header"), why="an ONNX model: binary, no numbers in text"),
                 Opt("--names", "names", skip=("nan", "header", "empty"), why="class names: any text is names; an empty file means the model's own",
                     extra=lambda f: ["--detector", f["onnx"]]),
+                Opt("--armour", "onnx", skip=("nan", "header"), why="an ONNX model: binary, no numbers in text", extra=lambda f: ["--detector", f["onnx"]]),
+                Opt("--number", "onnx", skip=("nan", "header"), why="an ONNX model: binary, no numbers in text", extra=lambda f: ["--detector", f["onnx"]]),
+                Opt("--armour-names", "names", skip=("nan", "header", "empty"), why="class names: any text is names; an empty file means the model's own",
+                    extra=lambda f: ["--detector", f["onnx"], "--armour", f["onnx"]]),
+                Opt("--number-names", "names", skip=("nan", "header", "empty"), why="class names: any text is names; an empty file means the model's own",
+                    extra=lambda f: ["--detector", f["onnx"], "--number", f["onnx"]]),
+                Opt("--anchors", "names", skip=("header",), why="a YAML mapping; any key order", extra=lambda f: ["--detector", f["onnx"]]),
                 Opt("--out", "text", "output"), Opt("--minimap", "image", "output")], _b,
-               not_files=("--video", "--clouds")),
+               not_files=("--video", "--clouds", "--record")),  # --record: a live run only (tests/cli/test_record_replay.py)
     "hero-offset": Cmd(lambda f: ["-b", f["bundle"], "--replay", f["replay"], "--actual", "10"],
                        [Opt("--bundle", "bundle", "bundle"), Opt("--replay", "replay", "folder_in")], _b),
     "report": Cmd(lambda f: [f["bundle"], "-o", f["tmp"] / "r.html"],
@@ -98,6 +105,16 @@ TABLE: dict[str, Cmd] = {
                               [Opt("-o", "lc_out", "folder_out")]),
     "synth field": Cmd(lambda f: [f["tmp"] / "field_out", "--frames", "1", "--robots", "0", "--lidar-points", "10", "--image-scale", "0.05"],
                        [Opt(None, "field_out", "folder_out", index=0), Opt("--field", "field")]),
+    "lidar-field": Cmd(lambda f: ["-b", f["bundle"], "--cloud", f["cloud"], "--field", "rmuc2024", "--init", f["transform"]],
+                       [Opt("--bundle", "bundle", "bundle"), Opt("--cloud", "cloud"), Opt("--init", "transform"),
+                        Opt("--field-mesh", "cloud", skip=("nan", "header"), why="a mesh file (STL/PLY/OBJ): the PCD variants do not apply",
+                            base=lambda f: ["-b", f["bundle"], "--cloud", f["cloud"], "--init", f["transform"]])], _b, creates_bundle=True),
+    "synth match": Cmd(lambda f: [f["tmp"] / "match_out", "--frames", "1", "--robots", "0", "--people", "0", "--lidar-points", "100", "--no-aerial"],
+                       [Opt(None, "match_out", "folder_out", index=0)]),
+    # live-sensor commands: they need a running LiDAR (simulator) before any file is read; their inputs are covered by
+    # tests/cli/test_record_replay.py and tests/io/test_livox.py, not by this matrix
+    "record": Cmd(lambda f: [], [], not_files=("OUT", "out", "--bundle", "-b")),
+    "synth livox-sim": Cmd(lambda f: [], [], not_files=("--scene",)),
     "synth radar": Cmd(lambda f: [f["tmp"] / "radar_out", "--scenes", "1"], [Opt(None, "radar_out", "folder_out", index=0)]),
 }
 
@@ -112,7 +129,7 @@ def _commands() -> dict:
     import typer
 
     root = typer.main.get_command(app)
-    out: dict[str, click.Command] = {}
+    out: dict = {}
 
     def walk(cmd, prefix):
         if hasattr(cmd, "commands"):  # a group (typer may vendor its own click: no isinstance)

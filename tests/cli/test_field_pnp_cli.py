@@ -61,7 +61,7 @@ def test_exact_picks_write_pose_chain_session_png(work, capsys):
     assert deg < 1e-6 and m < 1e-6
     e = bd.transforms["T_cam0_field"]
     assert set(e.residual["per_point_px"]) == set(RED4) and len(e.sigma["camera_position_m"]) == 3
-    assert bd.field_model["name"] == "rmuc2024"
+    assert bd.field_model["name"] == "rmuc_schematic"  # rmuc2024 is the old name of the schematic
     arrays, meta = load_session(bd, "field_pnp/cam0")
     assert list(arrays["names"]) == RED4 and arrays["sigma_lidar"].shape == (15, 28) and meta["depth_source"] == "lidar"
     assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"

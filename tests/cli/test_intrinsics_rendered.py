@@ -191,7 +191,7 @@ def test_rendered_good_practice_plan_1280x1024(tmp_path, capsys):
     import cv2
 
     from radarcal.board import BoardSpec
-    from radarcal.intrinsics.simulate import radar_station_camera, simulate_good_practice_views
+    from radarcal.synth.intrinsics_views import radar_station_camera, simulate_good_practice_views
     from radarcal.synth.board import BoardRenderer, RenderSettings
 
     cam = radar_station_camera()

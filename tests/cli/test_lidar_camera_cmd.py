@@ -36,8 +36,8 @@ def test_refine_cli_stores_transform_and_session(synth_dir, capsys):
     e = b.transforms["T_cam0_lidar0"]
     assert "edge-alignment" in e.method and e.residual["edge_matches"] > 100 and len(e.sigma["edge_rot_deg"]) == 3
     arrays, meta = load_session(b, "lidar_camera/cam0_lidar0")
-    assert {"residuals_before", "residuals_after", "profile_rx_cost", "scene0_uv"} <= set(arrays)
-    assert meta["converged"] is True
+    assert {"residuals_before", "residuals_after", "profile_costs", "scene0_uv"} <= set(arrays) and arrays["profile_costs"].shape[0] == 6
+    assert meta["converged"] is True and meta["kind"] == "lidar_camera" and meta["camera"] == "cam0"
 
 
 def test_corners_cli(synth_dir, tmp_path, capsys):
@@ -104,3 +104,39 @@ def test_refine_method_dense_cli(synth_dir, tmp_path, capsys):
     assert q["edge_score_after_px"] < q["edge_score_before_px"] and q["dense_score_after"] > q["dense_score_before"]
     assert main(["lidar-camera", "-b", str(tmp_path / "b.yaml"), "--image", str(synth_dir / "image.png"), "--cloud", str(synth_dir / "cloud.pcd"),
                  "--refine", "--refine-method", "nope"]) == 2
+
+
+def _scene_bag(synth_dir, path):
+    from bag_writer import write_ros1_livox_bag
+
+    from radarcal.io import read_cloud
+
+    c = read_cloud(synth_dir / "cloud.pcd")
+    refl = np.clip(np.rint(c.intensity), 0, 255).astype(np.uint8)
+    parts = np.array_split(np.arange(len(c)), 5)
+    return write_ros1_livox_bag(path, [c.points[i] for i in parts], [1700000000.0 + 0.1 * k for k in range(5)], refl=[refl[i] for i in parts])
+
+
+def test_bag_cloud_errors_name_the_bag(synth_dir, tmp_path, capsys):
+    bag = _scene_bag(synth_dir, tmp_path / "scene.bag")
+    capsys.readouterr()
+    assert main(["lidar-camera", "-b", str(synth_dir / "bundle.yaml"), "--image", str(synth_dir / "image.png"), "--cloud", str(bag), "--cloud-topic", "/nope", "--refine"]) == 2
+    assert f"error: {bag}: no Livox CustomMsg / PointCloud2 topic /nope" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_refine_cli_reads_the_cloud_from_a_bag(synth_dir, tmp_path, capsys):
+    """The same scene recorded as a ROS1 bag of 5 Livox CustomMsg clouds (written by rosbags): merged by the cloud
+    layer, it calibrates to the same accuracy as the PCD."""
+    import shutil
+
+    bag = _scene_bag(synth_dir, tmp_path / "scene.bag")
+    shutil.copy(synth_dir / "bundle.yaml", tmp_path / "b.yaml")
+    capsys.readouterr()
+    rc = main(["lidar-camera", "-b", str(tmp_path / "b.yaml"), "--image", str(synth_dir / "image.png"), "--cloud", str(bag), "--cloud-topic", "/livox/lidar",
+               "--init", str(synth_dir / "init.json"), "--refine", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["stored"]
+    truth = np.array(json.loads((synth_dir / "truth.json").read_text())["T_cam_lidar"])
+    deg, m = geometry.pose_error(np.array(out["T_cam_lidar"]), truth)
+    assert deg < 0.15 and m < 0.03, (deg, m)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from radarcal import geometry
-from radarcal.extrinsics.lidar_lidar import ground_prealign, overlap_metrics, register_lidar
+from radarcal.extrinsics.radar.lidar_lidar import ground_prealign, overlap_metrics, register_lidar
 from radarcal.synth.radar import RadarRigSpec, RadarSceneSpec, generate_radar_session
 
 
@@ -36,7 +36,7 @@ def test_ground_prealign_fixes_tilt_and_height(synth_clouds):
     T0[:3, :3] = geometry.rpy_deg_to_R(10.0, -8.0, 0.0) @ T_true[:3, :3]  # tilt error only (yaw kept)
     T0[:3, 3] += [0.0, 0.0, 0.3]
     T, info = ground_prealign(src, tgt, T0)
-    from radarcal.extrinsics.radar_lidar import fit_ground_plane
+    from radarcal.extrinsics.radar import fit_ground_plane
 
     # the ground normals agree again and the ground heights coincide
     gs, gt = fit_ground_plane(src, up_hint=T0[:3, :3].T @ [0, 0, 1.0]), fit_ground_plane(tgt)

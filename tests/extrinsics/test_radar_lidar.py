@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from radarcal import geometry
-from radarcal.extrinsics.radar_lidar import (
+from radarcal.extrinsics.radar import (
     Pose2,
     board_reflector_centres,
     build_scene_obs,

@@ -8,7 +8,7 @@ import numpy as np
 from radarcal.camera import Camera
 from radarcal.intrinsics.crossval import choose_model, cross_validate, projection_difference
 from radarcal.intrinsics.detect import BoardSpec, detect_board, object_points
-from radarcal.intrinsics.simulate import radar_station_camera, simulate_views
+from radarcal.synth.intrinsics_views import radar_station_camera, simulate_views
 
 BOARD = BoardSpec("chessboard", 11, 8, 0.03)
 

@@ -7,7 +7,7 @@ import numpy as np
 from radarcal.camera import Camera
 from radarcal.intrinsics.detect import BoardSpec, object_points
 from radarcal.intrinsics.select import coverage, novel_mask, view_descriptor
-from radarcal.intrinsics.simulate import radar_station_camera, simulate_views
+from radarcal.synth.intrinsics_views import radar_station_camera, simulate_views
 
 BOARD = BoardSpec("chessboard", 9, 6, 0.05)
 CAM = Camera((1280, 1024), np.array([[1000.0, 0, 639.5], [0, 1000.0, 511.5], [0, 0, 1]]), np.zeros(5))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from radarcal.intrinsics.detect import BoardSpec
-from radarcal.intrinsics.simulate import radar_station_camera, simulate_good_practice_views, simulate_views
+from radarcal.synth.intrinsics_views import radar_station_camera, simulate_good_practice_views, simulate_views
 from radarcal.intrinsics.solve import calibrate, projection_uncertainty, residuals, solve_once
 
 BOARD = BoardSpec("chessboard", 14, 10, 0.03)

@@ -8,7 +8,7 @@ import numpy as np
 from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.intrinsics.detect import BoardSpec, detect_board, normalise_order, object_points
-from radarcal.intrinsics.simulate import radar_station_camera, simulate_views
+from radarcal.synth.intrinsics_views import radar_station_camera, simulate_views
 from radarcal.intrinsics.solve import calibrate
 from radarcal.intrinsics.stereo import pair_by_name, stereo_calibrate
 

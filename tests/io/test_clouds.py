@@ -84,33 +84,48 @@ def test_pcd_binary_with_mixed_types(tmp_path):
     np.testing.assert_array_equal(c.intensity, arr["intensity"].astype(np.float32))
 
 
-@pytest.mark.parametrize("use_open3d", [False, True], ids=["pure-python-lzf", "open3d-fast-path"])
-def test_pcd_binary_compressed_written_by_open3d(tmp_path, monkeypatch, use_open3d):
+def test_pcd_binary_compressed_written_by_open3d(tmp_path):
     pts, inten = _cloud(20000, seed=1)
     pts[::7] = np.round(pts[::7])  # some repetition so LZF emits back references too
     inten[:5000] = 0  # and a long run (overlapping back references)
     ring = (np.arange(len(pts)) % 16).astype(np.uint16)
     _o3d_t_write(tmp_path / "c.pcd", pts, inten, compressed=True, extra={"ring": ring})
     assert b"DATA binary_compressed" in (tmp_path / "c.pcd").read_bytes()[:400]
-    monkeypatch.setattr(clouds, "OPEN3D_MIN_POINTS", 0 if use_open3d else 10**12)
-    calls = []
-    real = clouds._lzf_decompress
-    monkeypatch.setattr(clouds, "_lzf_decompress", lambda *a: calls.append(1) or real(*a))
     c = read_cloud(tmp_path / "c.pcd")
-    assert bool(calls) != use_open3d  # the path under test was the one taken
     assert np.array_equal(c.points, pts)
     assert np.array_equal(c.intensity, inten)
+    assert np.array_equal(c.ring, ring.astype(np.int32))
 
 
-def test_lzf_decoder_against_known_stream():
+def test_read_cloud_never_imports_open3d(tmp_path):
+    """The runtime's hot path: a large binary_compressed PCD is decoded without importing open3d (~1 s)."""
+    import subprocess
+    import sys
+
+    pts, inten = _cloud(150_000, seed=2)
+    _o3d_t_write(tmp_path / "big.pcd", pts, inten, compressed=True)
+    code = ("import sys; from radarcal.io import read_cloud; c = read_cloud(sys.argv[1]); "
+            "assert 'open3d' not in sys.modules, 'open3d imported'; print(len(c))")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "big.pcd")], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "150000"
+
+
+def test_lzf_decoder_against_known_stream(tmp_path):
     """A hand-assembled LZF stream: literal 'abc', back reference (len 3, offset 3) -> 'abc', then an
     overlapping back reference (len 8, offset 1) that repeats 'c'."""
     stream = bytes([2]) + b"abc" + bytes([(1 << 5) | 0, 2]) + bytes([(6 << 5) | 0, 0])
     assert clouds._lzf_decompress(stream, 14) == b"abcabc" + b"c" * 8
-    with pytest.raises(ValueError):
-        clouds._lzf_decompress(stream, 15)
-    with pytest.raises(ValueError):
-        clouds._lzf_decompress(bytes([(1 << 5) | 0, 9]) + b"", 3)  # reference before the start
+    assert clouds._lzf_decompress(stream, 15) is None  # decodes to 14 bytes, not the 15 the header claims
+    assert clouds._lzf_decompress(stream, 13) is None
+    assert clouds._lzf_decompress(bytes([(1 << 5) | 0, 9]), 3) is None  # reference before the start
+    # through the reader: a corrupt body is one InputError naming the file
+    n = 4
+    header = (f"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH {n}\nHEIGHT 1\nPOINTS {n}\nDATA binary_compressed\n").encode()
+    body = np.array([3, 48], "<u4").tobytes() + bytes([(1 << 5) | 0, 9, 0])
+    (tmp_path / "bad.pcd").write_bytes(header + body)
+    with pytest.raises(InputError, match="bad.pcd.*corrupt"):
+        read_cloud(tmp_path / "bad.pcd")
 
 
 def test_real_mlcc_width0_header(shared):
@@ -227,9 +242,9 @@ def test_truncated_and_garbage_files_name_the_file(tmp_path):
         read_cloud(tmp_path / "missing.pcd")
 
 
-def test_one_million_point_compressed_read_time(tmp_path, monkeypatch):
-    """1 M LiDAR-like points (x y z intensity) as binary_compressed: identical data through both paths; the
-    default path (open3d's reader) stays well under a second, the pure-Python decoder is the measured fallback."""
+def test_one_million_point_compressed_read_time(tmp_path):
+    """1 M LiDAR-like points (x y z intensity) as binary_compressed, written by open3d: read identically, and in about
+    the time open3d's own C++ reader takes (LZF in C, no Python loop over tokens)."""
     n = 1_000_000
     rng = np.random.default_rng(0)
     az = np.linspace(0, 200 * np.pi, n)
@@ -237,14 +252,14 @@ def test_one_million_point_compressed_read_time(tmp_path, monkeypatch):
     pts = np.stack([r * np.cos(az), r * np.sin(az), np.round(0.3 * np.sin(az / 50), 2)], 1).astype(np.float32)
     inten = np.where(np.arange(n) % 3 == 0, 0, rng.integers(0, 256, n)).astype(np.float32)
     path = _o3d_t_write(tmp_path / "big.pcd", pts, inten, compressed=True)
-    t = time.perf_counter()
-    c = read_cloud(path)
-    fast = time.perf_counter() - t
+    ours, theirs = [], []
+    for _ in range(3):
+        t = time.perf_counter()
+        c = read_cloud(path)
+        ours.append(time.perf_counter() - t)
+        t = time.perf_counter()
+        o3d.t.io.read_point_cloud(str(path))
+        theirs.append(time.perf_counter() - t)
     assert np.array_equal(c.points, pts) and np.array_equal(c.intensity, inten)
-    assert fast < 5.0  # ~0.15-0.4 s measured on the 2-core dev machine
-    monkeypatch.setattr(clouds, "OPEN3D_MIN_POINTS", 10**12)
-    t = time.perf_counter()
-    c = read_cloud(path)
-    pure = time.perf_counter() - t
-    assert np.array_equal(c.points, pts) and np.array_equal(c.intensity, inten)
-    print(f"\n1M-point binary_compressed read: open3d path {fast:.2f} s, pure-Python LZF {pure:.2f} s")
+    assert min(ours) < 2.0 * min(theirs) + 0.05, (ours, theirs)
+    print(f"\n1M-point binary_compressed read: radarcal {min(ours):.3f} s, open3d {min(theirs):.3f} s")

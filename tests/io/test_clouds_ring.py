@@ -1,12 +1,11 @@
 """The ``ring`` field of spinning multi-beam LiDAR clouds: read by every PCD path (ascii, binary_compressed through the
-pure-Python LZF decoder and through open3d) and from the real opencalib clouds."""
+LZF decoder) and from the real opencalib clouds."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-import radarcal.io.clouds as clouds
 from radarcal.io import read_cloud, write_pcd
 
 o3d = pytest.importorskip("open3d", reason="open3d is needed to write reference clouds")
@@ -25,9 +24,7 @@ def _write(path, n=3000, seed=1, ascii=False, compressed=True):
     return pts, inten, ring
 
 
-@pytest.mark.parametrize("via_open3d", [False, True])
-def test_ring_binary_compressed(tmp_path, monkeypatch, via_open3d):
-    monkeypatch.setattr(clouds, "OPEN3D_MIN_POINTS", 1 if via_open3d else 10**9)
+def test_ring_binary_compressed(tmp_path):
     pts, inten, ring = _write(tmp_path / "c.pcd")
     c = read_cloud(tmp_path / "c.pcd")
     assert np.array_equal(c.points, pts) and np.array_equal(c.intensity, inten)
@@ -44,7 +41,7 @@ def test_ring_ascii_and_absent(tmp_path):
 
 def test_ring_of_the_opencalib_clouds(shared):
     root = shared("opencalib_road_64beam")
-    for name in ("auto", "calibanything_1"):  # 85,546 points (LZF in Python) and 101,340 (open3d)
+    for name in ("auto", "calibanything_1"):  # 85,546 and 101,340 points, binary_compressed
         c = read_cloud(root / name / "calib.pcd")
         assert c.ring is not None and len(c.ring) == len(c.points)
         assert c.ring.min() == 0 and c.ring.max() == 63

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from radarcal.errors import InputError
-from radarcal.extrinsics.radar_lidar import quantisation_report
+from radarcal.extrinsics.radar import quantisation_report
 from radarcal.io.radar import read_ars408_csv, read_radar_csv, read_radar_session, read_rig_yaml, read_tudelft_accumulator, read_tudelft_example
 
 

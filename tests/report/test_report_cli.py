@@ -11,7 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from radarcal.bundle import Bundle, save_bundle, save_session
+from radarcal.bundle import Bundle, save_bundle
+from radarcal.extrinsics.lidar_camera_session import LidarCameraSession
+from radarcal.intrinsics.session import IntrinsicsSession
+from radarcal.pnp.session import FieldPnPSession
 from radarcal.camera import Camera
 from radarcal.cli.main import main as cli
 from radarcal.geometry import T_from_xyz_rpy_deg, make_T
@@ -21,7 +24,7 @@ CAM = Camera((1280, 1024), [[1000.0, 0, 640.0], [0, 1000.0, 512.0], [0, 0, 1]], 
 T_CAM_LIDAR = make_T(np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]]), [0.02, 0.1, 0.05])
 
 
-def _intrinsics_arrays(rng):
+def _intrinsics_session(rng):
     """Board corners seen in 12 views, projected with CAM, plus 0.2 px noise; view 3 carries 2 px noise."""
     obj = np.stack(np.meshgrid(np.arange(9) * 0.05, np.arange(6) * 0.05), -1).reshape(-1, 2)
     obj = np.c_[obj, np.zeros(len(obj))]
@@ -38,21 +41,10 @@ def _intrinsics_arrays(rng):
     v = np.linspace(0, 1023, 27)
     uu, vv = np.meshgrid(u, v)
     sigma = 0.05 + (np.hypot(uu - 640, vv - 512) / 600.0) ** 2
-    view_err = np.bincount(vidx, np.linalg.norm(res, axis=1)) / np.bincount(vidx)
-    return {
-        "uv_observed": uv,
-        "residual_px": res,
-        "view_index": vidx,
-        "view_names": np.array([f"img{i:02d}.png" for i in range(12)]),
-        "view_error_px": view_err,
-        "view_outlier": view_err > 1.0,
-        "uncertainty_u": u,
-        "uncertainty_v": v,
-        "uncertainty_px": sigma,
-        "crossval_u": u,
-        "crossval_v": v,
-        "crossval_diff_px": 0.5 * sigma,
-    }
+    view_rms = np.sqrt(np.bincount(vidx, np.sum(res**2, axis=1)) / np.bincount(vidx))
+    return IntrinsicsSession(corners_uv=uv, residuals=res, corner_view=vidx, names=np.array([f"img{i:02d}.png" for i in range(12)]), status=np.array(["used"] * 12),
+                             view_index=np.arange(12), view_rms_px=view_rms, view_used=view_rms <= 1.0, uncertainty_u=u, uncertainty_v=v, uncertainty_sigma_px=sigma,
+                             crossval_u=u, crossval_v=v, crossval_diff_px=0.5 * sigma, camera="cam0", noise_px=0.2, uncertainty_threshold_px=0.2)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +57,7 @@ def bundle_path(tmp_path_factory):
     T_field_cam = make_T(np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]) @ T_from_xyz_rpy_deg(0, 0, 0, 20, 0, 0)[:3, :3], [-1.0, 7.5, 2.5])
     b.set_transform("cam0", "field", np.linalg.inv(T_field_cam), method="field-pnp")
     b.field_model = {"name": "test", "size": [28.0, 15.0], "landmarks": {"a": [0, 0, 0], "b": [28, 15, 0], "c": [14, 7.5, 0.6], "d": [10, 2, 0]}, "outline": [[0, 0], [28, 0], [28, 15], [0, 15]]}
-    save_session(b, "intrinsics/cam0", _intrinsics_arrays(rng), {"noise_sigma_px": 0.2, "valid_threshold_px": 0.2})
+    _intrinsics_session(rng).save(b, "intrinsics/cam0")
     # the layout `radarcal lidar-camera --refine` writes; the image and cloud are named (relative) in meta "pairs"
     import cv2
 
@@ -76,43 +68,27 @@ def bundle_path(tmp_path_factory):
     cv2.imwrite(str(tmp_path / "scene.png"), np.full((1024, 1280, 3), 100, np.uint8))
     a = rng.uniform([0, 0], [1280, 1024], (300, 2))
     x = np.linspace(-1, 1, 9)
-    arrays = {
-        "T_init": T_from_xyz_rpy_deg(0.05, 0, 0, 2, 1, 0) @ T_CAM_LIDAR,
-        "T_final": T_CAM_LIDAR,
-        "scene0_uv": a,
-        "scene0_line_point": a + rng.normal(0, 1, a.shape),
-        "residuals_before": rng.normal(0, 5, 280),
-        "residuals_after": rng.normal(0, 0.5, 300),
-    }
-    for i, name in enumerate(("rx", "ry", "rz", "tx", "ty", "tz")):
-        arrays[f"profile_{name}_offset"] = x * (0.02 if i < 3 else 0.1)
-        arrays[f"profile_{name}_cost"] = 1 + x**2
-    save_session(b, "lidar_camera/cam0_lidar0", arrays, {"init": "init.json", "method": "edge-alignment", "converged": True, "pairs": [["scene.png", "cloud.pcd"]]})
+    LidarCameraSession(
+        T_init=T_from_xyz_rpy_deg(0.05, 0, 0, 2, 1, 0) @ T_CAM_LIDAR, T_final=T_CAM_LIDAR, scene_matches={"scene0_uv": a, "scene0_line_point": a + rng.normal(0, 1, a.shape)},
+        residuals_before=rng.normal(0, 5, 280), residuals_after=rng.normal(0, 0.5, 300), profile_offsets=np.stack([x * (0.02 if i < 3 else 0.1) for i in range(6)]),
+        profile_costs=np.stack([1 + x**2] * 6), camera="cam0", lidar="lidar0", init="init.json", method="edge-alignment", converged=True, pairs=[["scene.png", "cloud.pcd"]],
+    ).save(b, "lidar_camera/cam0_lidar0")  # fmt: skip
     b.transforms["T_cam0_lidar0"].sigma = {"edge_rot_deg": [0.05, 0.02, 0.04], "edge_trans_m": [0.003, 0.008, 0.002]}
     xg = np.linspace(0, 28, 29)
     yg = np.linspace(0, 15, 16)
     xx, yy = np.meshgrid(xg, yg)
-    save_session(
-        b,
-        "field_pnp/cam0",
-        {
-            "pick_names": np.array(["a", "b", "c", "d"]),
-            "uv_picked": np.array([[100.0, 800], [1200, 300], [640, 400], [300, 900]]),
-            "uv_reprojected": np.array([[100.5, 800.2], [1199, 300.4], [640.3, 399.5], [300.0, 901.0]]),
-            "error_map_x": xg,
-            "error_map_y": yg,
-            "error_map_m": 0.02 * np.hypot(xx + 1, yy - 7.5),
-        },
-        {},
-    )
+    picked = np.array([[100.0, 800], [1200, 300], [640, 400], [300, 900]])
+    reproj = np.array([[100.5, 800.2], [1199, 300.4], [640.3, 399.5], [300.0, 901.0]])
+    FieldPnPSession(names=np.array(["a", "b", "c", "d"]), uv=picked, residuals_px=picked - reproj, grid_x=xg, grid_y=yg, sigma_ground=0.02 * np.hypot(xx + 1, yy - 7.5),
+                    camera="cam0", field="test").save(b, "field_pnp/cam0")  # fmt: skip
     save_bundle(b, b.path)
     tracks = tmp_path / "track.jsonl"
     truth = tmp_path / "truth.jsonl"
     t = np.arange(50) * 0.1
     with open(tracks, "w") as f, open(truth, "w") as g:
         for ti in t:
-            f.write(json.dumps({"t": ti, "robots": [{"label": "R1", "x": 2 + ti + 0.1, "y": 3.0}, {"label": "B3", "xyz": [20 - ti, 10.0, 0.0]}]}) + "\n")
-            g.write(json.dumps({"t": ti, "robots": [{"label": "R1", "x": 2 + ti, "y": 3.0}, {"label": "B3", "xyz": [20 - ti, 10.2, 0.0]}]}) + "\n")
+            f.write(json.dumps({"t": ti, "robots": [{"label": "R1", "x": 2 + ti + 0.1, "y": 3.0}, {"label": "B3", "x": 20 - ti, "y": 10.0, "z": 0.0}]}) + "\n")
+            g.write(json.dumps({"t": ti, "robots": [{"label": "R1", "x": 2 + ti, "y": 3.0}, {"label": "B3", "p_field": [20 - ti, 10.2, 0.0]}]}) + "\n")
     return b.path
 
 
@@ -167,7 +143,7 @@ def test_run_section_error_against_truth(bundle_path):
 def test_report_session_dir_and_errors(tmp_path, capsys):
     b = Bundle(path=tmp_path / "calib.yaml")
     b.set_camera("cam0", CAM)
-    save_session(b, "intrinsics/cam0", {"uv_observed": np.array([[10.0, 10.0], [500.0, 600.0]])}, {})
+    IntrinsicsSession(corners_uv=np.array([[10.0, 10.0], [500.0, 600.0]])).save(b, "intrinsics/cam0")
     save_bundle(b, b.path)
     bundle_path = b.path
     # the session folder moved elsewhere: --session finds the files by name
@@ -190,7 +166,7 @@ def test_report_session_dir_and_errors(tmp_path, capsys):
 def test_report_skips_what_a_session_lacks(tmp_path, capsys):
     b = Bundle(path=tmp_path / "b.yaml")
     b.set_camera("cam0", CAM)
-    save_session(b, "intrinsics/cam0", {"uv_observed": np.array([[10.0, 10.0], [500.0, 600.0]])}, {})
+    IntrinsicsSession(corners_uv=np.array([[10.0, 10.0], [500.0, 600.0]])).save(b, "intrinsics/cam0")
     save_bundle(b, b.path)
     assert cli(["report", str(b.path), "-o", str(tmp_path / "r.html"), "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
@@ -311,7 +287,7 @@ def test_lidar_camera_section_reads_files_named_by_the_session(tmp_path, capsys)
     b = Bundle(path=tmp_path / "calib.yaml")
     b.set_camera("cam0", CAM)
     b.set_transform("cam0", "lidar0", T_CAM_LIDAR, method="edges")
-    save_session(b, "lidar_camera/cam0_lidar0", {"T_cam_lidar": T_CAM_LIDAR}, {"camera": "cam0", "lidar": "lidar0", "cloud": "cloud.pcd", "image": "img.png"})
+    LidarCameraSession(T_final=T_CAM_LIDAR, camera="cam0", lidar="lidar0", pairs=[["img.png", "cloud.pcd"]]).save(b, "lidar_camera/cam0_lidar0")
     save_bundle(b, b.path)
     content = build_report(load_bundle(b.path))
     sec = content.sections[-1]
@@ -335,7 +311,7 @@ def test_lidar_camera_section_of_the_command_layout(bundle_path):
 
     img = cv2.imread(str(bundle_path.parent / "scene.png"))
     pts = read_cloud(bundle_path.parent / "cloud.pcd").points
-    sec = lidar_camera_section("lidar_camera/cam0_lidar0", CAM, {**arrays, "points_lidar": pts}, meta, None, img, None, b.transforms["T_cam0_lidar0"].sigma)
+    sec = lidar_camera_section("lidar_camera/cam0_lidar0", CAM, arrays, meta, None, img, None, b.transforms["T_cam0_lidar0"].sigma, points_lidar=pts)
     figs = [it for it in sec.items if hasattr(it, "savefig")]
     assert len(figs) == 4
     overlay = figs[0]

@@ -95,3 +95,55 @@ def test_yolov5n_sized_graph(tmp_path):
     det = OnnxDetector(model, threads=1)
     out = det.session.run(None, {"images": np.zeros((1, 3, 320, 320), np.float32)})[0]
     assert out.shape == (1, 3 * (40 * 40 + 20 * 20 + 10 * 10), 17)
+
+
+def test_class_name_files_in_the_formats_teams_use(tmp_path):
+    (tmp_path / "data.yaml").write_text("path: ../datasets/rm\ntrain: images/train\nnc: 3\nnames: ['red_1', 'red_3', 'blue_7']\n")
+    assert read_class_names(tmp_path / "data.yaml") == ["red_1", "red_3", "blue_7"]
+    (tmp_path / "data2.yaml").write_text("names:\n  0: car\n  1: armor\n")  # ultralytics mapping form
+    assert read_class_names(tmp_path / "data2.yaml") == ["car", "armor"]
+    (tmp_path / "bad.yaml").write_text("nc: 4\nnames: [a, b]\n")
+    with pytest.raises(InputError, match="nc: 4 but 2 names"):
+        read_class_names(tmp_path / "bad.yaml")
+    (tmp_path / "ids.txt").write_text("# robots\n0 red_1\n1 blue 3\n")
+    assert read_class_names(tmp_path / "ids.txt") == ["red_1", "blue 3"]
+    (tmp_path / "gap.yaml").write_text("names: {0: a, 2: c}\n")
+    with pytest.raises(InputError, match="expected a list"):
+        read_class_names(tmp_path / "gap.yaml")
+    with pytest.raises(InputError, match="not found"):
+        read_class_names(tmp_path / "missing.txt")
+
+
+def test_providers_resolve_and_fall_back(tmp_path, capsys):
+    import onnxruntime as ort
+
+    from radarcal.runtime.detector import resolve_providers
+
+    use, missing = resolve_providers("tensorrt,cuda,cpu")
+    assert use[-1] == "CPUExecutionProvider"
+    have = set(ort.get_available_providers())
+    assert set(missing) == {"TensorrtExecutionProvider", "CUDAExecutionProvider"} - have
+    with pytest.raises(InputError, match="unknown provider 'gpu0'"):
+        resolve_providers("gpu0")
+    model = tmp_path / "m.onnx"
+    make_fixed_boxes_model(model, np.stack([row([100, 200, 300, 400], 0, 0.9)]), 640, NAMES)
+    det = OnnxDetector(model, providers="cuda")
+    assert det.model.providers[-1] == "CPUExecutionProvider" and len(det(np.zeros((1024, 1280, 3), np.uint8))) == 1
+
+
+def test_raw_heads_with_anchors_from_a_config(tmp_path):
+    from radarcal.runtime.synthetic_onnx import layout_outputs, make_fixed_outputs_model
+
+    anchors = [[(8, 8), (12, 20), (20, 12)], [(30, 30), (40, 60), (60, 40)], [(90, 90), (120, 160), (160, 120)]]
+    boxes = np.array([[100, 100, 108, 108], [300, 300, 340, 360], [10, 400, 170, 520]], float)
+    outs = layout_outputs("raw", [(boxes, [0, 1, 2], [0.9, 0.8, 0.7])], 4, 640, anchors=anchors)
+    model = tmp_path / "raw.onnx"
+    make_fixed_outputs_model(model, outs, (1, 3, 640, 640), {"names": repr(dict(enumerate(NAMES)))})
+    cfg = {"anchors": [[a for wh in lev for a in wh] for lev in anchors], "strides": [8, 16, 32]}  # YOLOv5 YAML: flat w,h lists
+    det = OnnxDetector(model, anchors=cfg)
+    assert det.layout.name == "raw" and det.layout.nc == 4
+    got = sorted(det(np.zeros((640, 640, 3), np.uint8)), key=lambda d: d.class_id)
+    np.testing.assert_allclose([d.xyxy for d in got], boxes, atol=0.05)
+    # the default (YOLOv5) anchors read the same heads wrongly: the anchor config matters
+    wrong = sorted(OnnxDetector(model)(np.zeros((640, 640, 3), np.uint8)), key=lambda d: d.class_id)
+    assert np.abs(np.array([d.xyxy for d in wrong]) - boxes).max() > 5

@@ -134,3 +134,43 @@ def test_box_exclusion_rectangles(station):
     excl = q.depth_in_box(b_far, exclude=b_near[None])
     assert plain.depth < z_far - 3  # the occluding robot wins without exclusion
     assert abs(excl.depth - z_far) < 0.3
+
+
+def test_box_depth_age_is_that_of_the_images_it_used(station):
+    """Regression: a 2-point newest cloud over an expired one used to report the expired cloud's age
+    (age_s=0.8, images_used=1); the depth comes from the newest cloud only, so its age is 0."""
+    cam, T_cam_lidar, T_field_cam = station["camera"], station["T_cam_lidar"], station["T_field_cam"]
+    T_lidar_field = invert_T(T_field_cam @ T_cam_lidar)
+    T_cam_field = invert_T(T_field_cam)
+    q = CloudQueue(cam, T_cam_lidar, max_points=10**6, max_age_s=1.0)
+    q.push(0.0, transform_points(T_lidar_field, robot_cloud((12.0, 7.0), n=300)))
+    uv, _ = cam.project(transform_points(T_cam_field, np.array([[12.0, 7.25, 0.0], [12.0, 6.75, 0.5]])))
+    box = (uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max())
+    two = transform_points(T_lidar_field, np.array([[11.75, 7.0, 0.2], [11.75, 7.05, 0.3]]))  # the robot's front face
+    q.push(0.8, two)
+    bd = q.depth_in_box(box, t=0.8, max_age_s=0.5)
+    z_front = transform_points(T_cam_field, np.array([[11.75, 7.0, 0.25]]))[0, 2]
+    assert bd is not None and bd.n_box == 2 and abs(bd.depth - z_front) < 0.1
+    assert bd.images_used == 1 and bd.age_s == pytest.approx(0.0)
+    # within the age limit both are pooled: the age is that of the oldest image that gave points
+    bd = q.depth_in_box(box, t=0.8, max_age_s=1.0)
+    assert bd.images_used == 2 and bd.n_box > 2 and bd.age_s == pytest.approx(0.8)
+
+
+def test_queue_transforms_once_and_matches_filter_then_project(station):
+    """The queue's single product (camera rows + field rows) gives the depth image of 'filter in the field frame,
+    then project' done separately."""
+    from radarcal.runtime.fusion import SurfaceFilter
+
+    cam, T_cam_lidar, T_field_cam = station["camera"], station["T_cam_lidar"], station["T_field_cam"]
+    T_field_lidar = T_field_cam @ T_cam_lidar
+    rng = np.random.default_rng(5)
+    p_field = np.column_stack([rng.uniform(0, 28, 40000), rng.uniform(0, 15, 40000), rng.choice([0.0, 0.02, 0.4, 1.0], 40000)])
+    pts = transform_points(invert_T(T_field_lidar), p_field).astype(np.float32)
+    flt = SurfaceFilter(T_field_lidar, structures=[{"center": [14, 7.5, 0], "size": [1, 1, 1.5], "yaw": 0.3}])
+    q = CloudQueue(cam, T_cam_lidar, point_filter=flt)
+    img = q.push(0.0, pts)
+    ref = make_depth_image(cam, T_cam_lidar, pts[flt(pts)])
+    assert img.n_points == len(pts) and 1000 < len(img.pix)
+    np.testing.assert_array_equal(img.pix, ref.pix)
+    np.testing.assert_allclose(img.depth, ref.depth, rtol=1e-6)

@@ -1,138 +1,17 @@
-"""Sources: ROS1/ROS2 bags (Livox CustomMsg, PointCloud2) decoded from the bag's definitions, Livox SDK1 packets,
-folders with times.csv, and time pairing."""
+"""Sources of ``run``: Livox SDK1 packets, image folders with times.csv, video files, prefetching, and time pairing of
+frames with clouds (the recorded cloud sources themselves are tested in tests/io/test_cloud_sources.py)."""
 
 from __future__ import annotations
 
-import socket
-import struct
 import time
 
 import numpy as np
 import pytest
 
 from radarcal.errors import InputError
-from radarcal.io import write_pcd
-from radarcal.runtime.sources import (LIVOX_CUSTOM_MSG, LIVOX_CUSTOM_POINT, CloudFrame, LivoxUdpSource, bag_clouds, cloud_folder,
-                                      image_folder_frames, merge_by_time, open_clouds, parse_livox_packet)  # fmt: skip
-
-
-def _typestore(store, pkg):
-    from rosbags.typesys import get_types_from_msg, get_typestore
-
-    ts = get_typestore(store)
-    ts.register(get_types_from_msg(LIVOX_CUSTOM_POINT, f"{pkg}/msg/CustomPoint"))
-    ts.register(get_types_from_msg(LIVOX_CUSTOM_MSG.format(pkg=pkg), f"{pkg}/msg/CustomMsg"))
-    return ts
-
-
-def _livox_msg(ts, pkg, pts, refl, stamp, ros1):
-    T = ts.types
-    Time = T["builtin_interfaces/msg/Time"]
-    hdr = T["std_msgs/msg/Header"](seq=1, stamp=Time(sec=int(stamp), nanosec=int((stamp % 1) * 1e9)), frame_id="livox") if ros1 else \
-        T["std_msgs/msg/Header"](stamp=Time(sec=int(stamp), nanosec=int((stamp % 1) * 1e9)), frame_id="livox")  # fmt: skip
-    P = T[f"{pkg}/msg/CustomPoint"]
-    points = [P(offset_time=i * 10, x=float(p[0]), y=float(p[1]), z=float(p[2]), reflectivity=int(r), tag=0, line=i % 4) for i, (p, r) in enumerate(zip(pts, refl))]
-    return T[f"{pkg}/msg/CustomMsg"](header=hdr, timebase=int(stamp * 1e9), point_num=len(points), lidar_id=0, rsvd=np.zeros(3, np.uint8), points=points)
-
-
-def _pc2_msg(ts, pts, stamp):
-    T = ts.types
-    PF = T["sensor_msgs/msg/PointField"]
-    rec = np.zeros(len(pts), np.dtype({"names": ["x", "y", "z", "intensity"], "formats": ["<f4"] * 4, "offsets": [0, 4, 8, 16], "itemsize": 32}))
-    rec["x"], rec["y"], rec["z"], rec["intensity"] = pts[:, 0], pts[:, 1], pts[:, 2], 7.0
-    fields = [PF(name=n, offset=o, datatype=7, count=1) for n, o in (("x", 0), ("y", 4), ("z", 8), ("intensity", 16))]
-    Time = T["builtin_interfaces/msg/Time"]
-    hdr = T["std_msgs/msg/Header"](stamp=Time(sec=int(stamp), nanosec=int((stamp % 1) * 1e9)), frame_id="l")
-    return T["sensor_msgs/msg/PointCloud2"](header=hdr, height=1, width=len(pts), fields=fields, is_bigendian=False, point_step=32,
-                                            row_step=32 * len(pts), data=np.frombuffer(rec.tobytes(), np.uint8), is_dense=True)  # fmt: skip
-
-
-def test_ros1_bag_livox_custommsg(tmp_path):
-    from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores
-
-    ts = _typestore(Stores.ROS1_NOETIC, "livox_ros_driver")
-    rng = np.random.default_rng(0)
-    clouds = [rng.uniform(-20, 20, (n, 3)).astype(np.float32) for n in (500, 333)]
-    path = tmp_path / "livox.bag"
-    with Writer(path) as w:
-        conn = w.add_connection("/livox/lidar", "livox_ros_driver/msg/CustomMsg", typestore=ts)
-        for k, c in enumerate(clouds):
-            msg = _livox_msg(ts, "livox_ros_driver", c, np.arange(len(c)) % 256, 1700000000.0 + 0.1 * k, ros1=True)
-            w.write(conn, int((1700000000.0 + 0.1 * k) * 1e9), ts.serialize_ros1(msg, "livox_ros_driver/msg/CustomMsg"))
-    got = list(bag_clouds(path))
-    assert len(got) == 2
-    for g, c in zip(got, clouds):
-        np.testing.assert_array_equal(g.points, c)
-        np.testing.assert_array_equal(g.intensity, np.arange(len(c)) % 256)
-    assert got[0].t == 0.0 and got[1].t == pytest.approx(0.1, abs=1e-6)
-
-
-@pytest.mark.parametrize("plugin", ["sqlite3", "mcap"])
-def test_ros2_bag_custommsg_and_pointcloud2(tmp_path, plugin):
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores
-
-    ts = _typestore(Stores.ROS2_HUMBLE, "livox_ros_driver2")
-    rng = np.random.default_rng(1)
-    c1 = rng.uniform(-20, 20, (257, 3)).astype(np.float32)  # odd count: CDR pads each 19-byte point to 20
-    c2 = rng.uniform(-20, 20, (100, 3)).astype(np.float32)
-    path = tmp_path / f"bag_{plugin}"
-    with Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3 if plugin == "sqlite3" else StoragePlugin.MCAP) as w:
-        a = w.add_connection("/livox/lidar", "livox_ros_driver2/msg/CustomMsg", typestore=ts)
-        b = w.add_connection("/points", "sensor_msgs/msg/PointCloud2", typestore=ts)
-        w.write(a, 10**9, ts.serialize_cdr(_livox_msg(ts, "livox_ros_driver2", c1, np.full(257, 9), 5.0, ros1=False), "livox_ros_driver2/msg/CustomMsg"))
-        w.write(b, 2 * 10**9, ts.serialize_cdr(_pc2_msg(ts, c2, 5.5), "sensor_msgs/msg/PointCloud2"))
-    got = list(bag_clouds(path, topic="/livox/lidar"))
-    assert len(got) == 1
-    np.testing.assert_array_equal(got[0].points, c1)
-    assert (got[0].intensity == 9).all()
-    got = list(bag_clouds(path, topic="/points"))
-    np.testing.assert_array_equal(got[0].points, c2)
-    assert (got[0].intensity == 7).all()
-    both = list(open_clouds(str(path)))
-    assert [len(c.points) for c in both] == [257, 100] and both[1].t == pytest.approx(0.5)
-    with pytest.raises(InputError, match="no Livox"):
-        list(bag_clouds(path, topic="/nope"))
-
-
-def _livox_packet(data_type, body, ts_ns=0):
-    return struct.pack("<BBBBIBBQ", 5, 1, 1, 0, 0, 1, data_type, ts_ns) + body
-
-
-def test_livox_sdk1_packets_and_udp_listener():
-    rng = np.random.default_rng(2)
-    mm = rng.integers(-20000, 20000, (96, 3)).astype("<i4")
-    rec = np.zeros(96, np.dtype([("x", "<i4"), ("y", "<i4"), ("z", "<i4"), ("r", "u1"), ("tag", "u1")]))
-    rec["x"], rec["y"], rec["z"], rec["r"] = mm[:, 0], mm[:, 1], mm[:, 2], 50
-    rec[5] = (0, 0, 0, 0, 0)  # no return: dropped
-    t, xyz, r = parse_livox_packet(_livox_packet(2, rec.tobytes(), 123_000_000))
-    assert t == pytest.approx(0.123) and len(xyz) == 95
-    np.testing.assert_allclose(xyz, np.delete(mm, 5, axis=0) * 1e-3, atol=1e-6)
-    # spherical: depth 10 m, theta 90 deg (horizontal), phi 30 deg -> (8.66, 5, 0)
-    sph = struct.pack("<IHHB", 10000, 9000, 3000, 10)
-    _, xyz, _ = parse_livox_packet(_livox_packet(1, sph))
-    np.testing.assert_allclose(xyz[0], [10 * np.cos(np.radians(30)), 5.0, 0.0], atol=1e-5)
-    assert parse_livox_packet(_livox_packet(6, bytes(24))) is None  # IMU
-    assert parse_livox_packet(b"\x05\x01") is None
-    # the listener cuts 100 ms clouds by sensor time
-    src = LivoxUdpSource("127.0.0.1", 0)
-    port = src.sock.getsockname()[1]
-    src.start()
-    try:
-        tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        for k in range(25):  # 25 packets 10 ms apart -> 2 complete clouds (0-0.1, 0.1-0.2)
-            tx.sendto(_livox_packet(2, rec.tobytes(), k * 10_000_000), ("127.0.0.1", port))
-            time.sleep(0.002)
-        end = time.monotonic() + 2
-        got = []
-        while time.monotonic() < end and len(got) < 2:
-            got += src.poll()
-            time.sleep(0.01)
-        assert [len(c.points) for c in got] == [950, 950]
-        assert src.packets == 25
-    finally:
-        src.close()
+from radarcal.io import Cloud, write_pcd
+from radarcal.io.cloud_sources import FolderCloudSource
+from radarcal.runtime.sources import CameraFrame, image_folder_frames, merge_by_time, open_clouds
 
 
 def test_folders_times_and_pairing(tmp_path):
@@ -147,17 +26,43 @@ def test_folders_times_and_pairing(tmp_path):
     (tmp_path / "cl").mkdir()
     for k, stem in enumerate(["1700000000.000000", "1700000000.050000"]):
         write_pcd(tmp_path / "cl" / f"{stem}.pcd", np.full((3, 3), k, np.float32))
-    clouds = list(cloud_folder(tmp_path / "cl"))
-    assert [c.t for c in clouds] == pytest.approx([0.0, 0.05])
-    pairs = list(merge_by_time(iter(frames), iter(clouds)))
+    src = FolderCloudSource(tmp_path / "cl")
+    clouds = list(src)
+    assert [c.t for c in clouds] == pytest.approx([1700000000.0, 1700000000.05])  # file-name stamps stay absolute
+    with pytest.raises(InputError, match="clocks differ"):  # frames from 0, clouds at 1.7e9 s: refused, not silently unpaired
+        list(merge_by_time(iter(frames), src))
+    pairs = list(merge_by_time(iter(frames), src, "first"))
     assert [len(b) for _, b in pairs] == [1, 0, 1, 0]  # cloud at 0.05 waits for the frame at 0.0667
-    pairs = list(merge_by_time(iter(frames), iter([CloudFrame(0.01, np.zeros((1, 3)))]), cloud_offset_s=0.05))
-    assert [len(b) for _, b in pairs] == [0, 0, 1, 0]
+    assert [c.t for _, b in pairs for c in b] == pytest.approx([0.0, 0.05])
+    assert [c.t for c in src] == pytest.approx([1700000000.0, 1700000000.05])  # the source's stamps are untouched
+    pairs = list(merge_by_time(iter(frames), src, -1700000000.0 + 0.01))
+    assert [len(b) for _, b in pairs] == [0, 1, 1, 0]  # clouds at 0.01 and 0.06 on the camera clock
+    one = Cloud(np.zeros((1, 3), np.float32), t=0.01)
+    pairs = list(merge_by_time(iter(frames), [one], cloud_offset_s=0.05))
+    assert [len(b) for _, b in pairs] == [0, 0, 1, 0] and one.t == 0.01 and pairs[2][1][0].t == pytest.approx(0.06)
+    with pytest.raises(InputError, match="cloud-time-offset"):
+        list(merge_by_time(iter(frames), [one], cloud_offset_s="later"))
     (tmp_path / "img" / "times.csv").write_text("file,t\n000000.png,abc\n")
     with pytest.raises(InputError, match="times.csv"):
         list(image_folder_frames(tmp_path / "img"))
     with pytest.raises(InputError):
         open_clouds(str(tmp_path / "missing"))
+
+
+def test_live_source_is_polled_and_shifted():
+    """Anything with a non-blocking poll() is live: what arrived since the last frame pairs with this one."""
+    frames = [CameraFrame(0.1 * i, str(i), lambda: None, i) for i in range(3)]
+
+    class Live:
+        def __init__(self):
+            self.queue = [[Cloud(np.zeros((2, 3), np.float32), t=5.0)], [], [Cloud(np.zeros((1, 3), np.float32), t=5.2)]]
+
+        def poll(self):
+            return self.queue.pop(0)
+
+    pairs = list(merge_by_time(iter(frames), Live(), "first"))
+    assert [len(b) for _, b in pairs] == [1, 0, 1]
+    assert [c.t for _, b in pairs for c in b] == pytest.approx([0.0, 0.2])
 
 
 def test_video_file_frames(tmp_path):
@@ -181,7 +86,7 @@ def test_video_file_frames(tmp_path):
 def test_prefetch_frames_keeps_order_and_errors(tmp_path):
     import cv2
 
-    from radarcal.runtime.sources import CameraFrame, prefetch_frames
+    from radarcal.runtime.sources import prefetch_frames
 
     (tmp_path / "img").mkdir()
     for i in range(6):

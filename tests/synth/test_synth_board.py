@@ -152,7 +152,7 @@ def test_charuco_layouts_detect_only_with_the_right_flag(legacy):
 
 
 def test_ray_grids_agree_with_camera_project():
-    from radarcal.synth.board import _ray_grid
+    from radarcal.synth.board_render import _ray_grid
 
     for model in ("pinhole8", "fisheye"):
         cam = default_camera(model, (320, 256))

@@ -101,10 +101,10 @@ def test_replay_files_load_and_match_truth(replay, fm):
     out, summary = replay
     meta = json.loads((out / "meta.json").read_text())
     truth = json.loads((out / "truth.json").read_text())
-    assert meta["n_frames"] == 16 and meta["fps"] == 30 and meta["lidar_hz"] == 10 and meta["field"] == "rmuc2024"
+    assert meta["n_frames"] == 16 and meta["fps"] == 30 and meta["lidar_hz"] == 10 and meta["field"] == "rmuc_schematic"
     b = load_bundle(out / "calib.yaml")
     np.testing.assert_allclose(b.T("field", "lidar0"), np.asarray(truth["T_field_lidar0"]), atol=1e-12)
-    assert b.field_model["name"] == "rmuc2024" and "red_outpost" in b.field_model["landmarks"]
+    assert b.field_model["name"] == "rmuc_schematic" and "red_outpost" in b.field_model["landmarks"]
     cam = b.camera("cam0")
     assert cam.image_size == (1280, 1024)
     # landmark true pixels agree with OpenCV's projection of the field coordinates

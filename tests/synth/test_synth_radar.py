@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from radarcal import geometry
-from radarcal.extrinsics.radar_lidar import slant_predict
+from radarcal.extrinsics.radar import slant_predict
 from radarcal.io import read_cloud
 from radarcal.io.radar import read_radar_session
 from radarcal.synth.radar import RadarRigSpec, RadarSceneSpec, generate_radar_session, reflector_offset, trihedral_points, write_radar_session

@@ -1,0 +1,515 @@
+"""Radar <-> radar and LiDAR <-> radar extrinsics from trihedral corner reflectors (pure numeric cores).
+
+The method follows a patented procedure for mining trucks (CN, "multi-LiDAR and radar joint calibration for mining
+areas") and goes beyond it where it is weak:
+
+1. main frame = the front (main) LiDAR's frame;
+2. radar <-> radar: 2D rigid transform (theta, a, b) between radars by nonlinear least squares, initialised in closed
+   form (2D Procrustes) -> :func:`procrustes_2d`, :func:`fit_rigid_2d`;
+3. LiDAR reflector extraction: ground-plane fit, removal of ground points along the plane normal, Euclidean clusters,
+   range gate (4 m), tripod removal, cluster centres -> :func:`fit_ground_plane`, :func:`extract_reflectors`;
+4. radar detection filtering into sets A (all in the region), B (seen by two or three radars), C (one radar only)
+   -> :func:`filter_detections`;
+5. LiDAR <-> radar (theta2, a2, b2) from >= 2 matches, chained into the main frame -> :func:`calibrate_rig`.
+
+Beyond the method: the **slant-range model** (a 2D radar reports the slant range to a reflector that is not at its
+mounting height; the fit predicts ``q * sqrt(|q|^2 + dz^2) / |q|`` with ``dz`` from the ground plane and the mounting
+height, or estimates the height), robust matching (mutual nearest neighbour under the current estimate, RANSAC over
+point pairs), per-reflector residuals, leave-one-out cross-validation, sigma of (theta, a, b), a quantisation report,
+and a joint refinement of all radars at once (reflectors seen only by radars enter as free 2D points).
+
+Frames: ``G`` is the ground frame of the main LiDAR (z = ground normal, origin = LiDAR origin dropped onto the
+ground, x = LiDAR x projected onto the ground). A 2D radar is level at ``mount_height`` above the ground:
+``T_G_radar = [Rz(theta), (a, b, mount_height)]`` and ``T_lidar_radar = T_lidar_G @ T_G_radar``.
+2D transforms are ``p_dst = R(theta) p_src + t`` and are named like 4x4 ones (``theta_radar_G`` maps G into radar).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from radarcal import geometry
+from radarcal.extrinsics.radar.detections import (
+    aggregate_frames,
+    filter_detections,
+    quantisation_report,
+)
+from radarcal.extrinsics.radar.geometry2d import (
+    Fit2D,
+    Pose2,
+    deslant,
+    fit_rigid_2d,
+    pose2_to_T,
+    rot2,
+    slant_predict,
+)
+from radarcal.extrinsics.radar.geometry2d import wrap_angle as _wrap
+from radarcal.extrinsics.radar.matching import mutual_nn, robust_match_sets
+from radarcal.extrinsics.radar.reflectors import (
+    GroundPlane,
+    ReflectorExtraction,
+    extract_reflectors,
+)
+from radarcal.extrinsics.radar.validation import leave_one_out, reject_outliers
+
+K_SIGMA = 3.0  # outlier rule: a hold-out residual (at unit weight) beyond this many times the others' RMS (4 before issue 18)
+
+__all__ = ["RadarResult", "RigCalibration", "SceneObs", "build_scene_obs", "calibrate_rig"]
+
+
+@dataclass
+class SceneObs:
+    """One reflector placement: LiDAR reflector centres (main LiDAR frame) and each radar's detections (its frame)."""
+
+    name: str
+    lidar_centres: np.ndarray  # (K,3)
+    radar_xy: dict  # radar name -> (M,2)
+    ground: GroundPlane | None = None
+    raw_radar_xy: dict | None = None  # before frame averaging (for the quantisation report)
+    radar_rcs: dict | None = None  # radar name -> (M,) mean RCS (dBsm) of each entry of radar_xy, or None
+    radar_counts: dict | None = None  # radar name -> (M,) frames averaged into each entry of radar_xy (None: 1 each)
+
+
+@dataclass
+class RadarResult:
+    name: str
+    pose_G: Pose2  # T_G_radar in 2D (radar -> ground frame)
+    mount_height: float
+    T_lidar_radar: np.ndarray  # 4x4, radar -> main LiDAR
+    fit: Fit2D  # LiDAR <-> radar fit of the final model (dst = radar measurement, src = ground-frame xy)
+    pairwise_pose_ref: Pose2 | None  # (theta1, a1, b1): this radar -> reference radar (patent step 2)
+    per_reflector: list  # dicts: scene, lidar index, radar xy, residual (m)
+    loo: dict
+    rejected: list
+    patent_pose_G: Pose2 | None = None  # (theta2, a2, b2) chain before joint refinement
+    sigma_G: dict = field(default_factory=dict)  # 1-sigma of T_G_radar's (theta, a, b) (+ height when estimated)
+
+
+@dataclass
+class RigCalibration:
+    T_lidar_G: np.ndarray
+    radars: dict  # name -> RadarResult
+    filter_counts: dict  # scene -> {A, B, C}
+    radar_radar: dict  # name -> {pose_ref, rms, n}
+    joint: dict  # summary of the joint refinement
+    quantisation: dict
+    model: str
+    notes: list
+
+
+def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant):
+    """Mutual-NN matches of one radar's detections with the LiDAR reflectors under ``pose_G`` (T_G_radar); the
+    matched detections' RCS (NaN when unknown) is the fifth return value."""
+    src, dst, z, info, rcs, cnt = [], [], [], [], [], []
+    inv = pose_G.inverse()
+    for si, sc in enumerate(scenes):
+        m = np.asarray(sc.radar_xy.get(name, np.zeros((0, 2))), float).reshape(-1, 2)
+        pg = lidar_G[si]
+        if len(m) == 0 or len(pg) == 0:
+            continue
+        q = inv.apply(pg[:, :2])
+        pred = slant_predict(q, pg[:, 2] - mount_h) if slant else q
+        pairs = mutual_nn(pred, m, gate)
+        rc = (sc.radar_rcs or {}).get(name)
+        nc = (sc.radar_counts or {}).get(name)
+        for i, j in pairs:
+            src.append(pg[i, :2]), dst.append(m[j]), z.append(pg[i, 2]), info.append((sc.name, int(i), int(j)))
+            rcs.append(np.nan if rc is None else float(rc[j]))
+            cnt.append(1 if nc is None else int(nc[j]))
+    return np.array(src).reshape(-1, 2), np.array(dst).reshape(-1, 2), np.array(z), info, np.array(rcs), np.array(cnt, float)
+
+
+def rcs_weights(rcs: np.ndarray, floor: float = 1e-3) -> np.ndarray:
+    """Relative inverse variances of radar detections from their RCS (dBsm): a radar's position noise grows as the
+    echo weakens (variance ~ 1 / SNR ~ 10^(-RCS/10)); relative to the 90th percentile of the matched detections'
+    RCS, capped at 1 (strong echoes all count the same), ``floor`` below. Ones when the RCS is unknown."""
+    rcs = np.asarray(rcs, float)
+    if len(rcs) == 0 or not np.isfinite(rcs).any():
+        return np.ones(len(rcs))
+    ref = float(np.nanpercentile(rcs, 90))
+    w = 10 ** ((np.where(np.isfinite(rcs), rcs, ref) - ref) / 10)
+    return np.clip(w, floor, 1.0)
+
+
+def calibrate_rig(
+    scenes: Sequence[SceneObs],
+    radar_names: Sequence[str],
+    mount_heights: dict,
+    reference: str | None = None,
+    init_T_lidar_radar: dict | None = None,
+    model: str = "slant",
+    gate: float = 0.35,
+    forward: tuple[float, float] = (0.0, 5.0),
+    lateral: tuple[float, float] = (-5.0, 5.0),
+    outlier_threshold: float = 0.15,
+    joint: bool = True,
+    lidar_range_gate: float | None = 4.0,
+    ground: GroundPlane | None = None,
+) -> RigCalibration:
+    """Every radar into the main LiDAR frame (patent steps 2-5, then the improvements).
+
+    ``model``: ``"slant"`` (radar mounting heights + ground plane; default), ``"planar"`` (the patent: reflector
+    centres' z dropped in the LiDAR frame, no slant). ``mount_heights``: radar scanning-plane height above the ground
+    (m); a radar without one gets it estimated (slant model). ``init_T_lidar_radar``: optional nominal poses (used to
+    pick correspondences; without them RANSAC over pairs decides).
+    """
+    notes: list[str] = []
+    if not scenes:
+        raise ValueError("no scenes")
+    radar_names = list(radar_names)
+    reference = reference or (radar_names[len(radar_names) // 2])
+    slant = model == "slant"
+    # --- ground frame -------------------------------------------------------------------------------------------
+    if model == "planar":
+        T_lidar_G = np.eye(4)
+    else:
+        planes = [s.ground for s in scenes if s.ground is not None]
+        if ground is None and planes:
+            n = np.mean([g.normal for g in planes], axis=0)
+            n /= np.linalg.norm(n)
+            ground = GroundPlane(n, float(np.mean([g.d for g in planes])), int(sum(g.inliers for g in planes)), float(np.mean([g.rms for g in planes])))
+        T_lidar_G = ground.T_lidar_ground() if ground is not None else np.eye(4)
+        if ground is None:
+            notes.append("no ground plane: the LiDAR frame is taken as level (z up) and heights are LiDAR z")
+    T_G_lidar = geometry.invert_T(T_lidar_G)
+    lidar_G = [geometry.transform_points(T_G_lidar, np.asarray(s.lidar_centres, float).reshape(-1, 3)) for s in scenes]
+    all_z = np.concatenate([p[:, 2] for p in lidar_G]) if lidar_G else np.zeros(0)
+    z_nominal = float(np.median(all_z)) if len(all_z) else 0.0
+    init_G: dict[str, Pose2] = {}
+    for r in radar_names:
+        if init_T_lidar_radar and r in init_T_lidar_radar and init_T_lidar_radar[r] is not None:
+            init_G[r] = Pose2.from_T(T_G_lidar @ np.asarray(init_T_lidar_radar[r], float))
+    heights = {r: (None if mount_heights.get(r) is None else float(mount_heights[r])) for r in radar_names}
+    for r in radar_names:
+        if slant and heights[r] is None:
+            notes.append(f"{r}: no mounting height given: estimated from the slant model (only |dz| is observable)")
+
+    # unknown height: start below the reflectors (bumper height); dz = 0 is a stationary point of the slant model
+    h_guess = 0.5 if abs(z_nominal - 0.5) > 0.15 else z_nominal - 0.4
+    if slant and ground is None:  # heights are LiDAR z: no bumper height to start from; 0.4 m below the reflectors
+        h_guess = z_nominal - 0.4
+
+    def _desl(name, m):
+        if not slant or (heights[name] is None and ground is None):
+            return np.asarray(m, float).reshape(-1, 2)  # unknown plane height: match on the raw (slant) positions
+        h = heights[name] if heights[name] is not None else h_guess
+        return deslant(m, z_nominal - h)
+
+    # --- step 2: radar <-> radar (theta1, a1, b1): each radar into the reference radar ---------------------------
+    radar_radar: dict[str, dict] = {}
+    pose_ref: dict[str, Pose2] = {reference: Pose2(0.0, np.zeros(2))}
+    for r in radar_names:
+        if r == reference:
+            continue
+        init = None
+        if reference in init_G and r in init_G:
+            init = init_G[reference].inverse().compose(init_G[r])
+        A_ = [_desl(r, sc.radar_xy.get(r, np.zeros((0, 2)))) for sc in scenes]
+        B_ = [_desl(reference, sc.radar_xy.get(reference, np.zeros((0, 2)))) for sc in scenes]
+        pairs_l, _ = robust_match_sets(A_, B_, init=init, gate=gate)
+        src = [a[p[:, 0]] for a, p in zip(A_, pairs_l) if len(p)]
+        dst = [b[p[:, 1]] for b, p in zip(B_, pairs_l) if len(p)]
+        if src and sum(len(s) for s in src) >= 2:
+            s_, d_ = np.concatenate(src), np.concatenate(dst)
+            f = fit_rigid_2d(s_, d_)
+            pose_ref[r] = f.pose
+            radar_radar[r] = {"pose_ref": f.pose, "rms": f.rms, "n": f.n, "sigma": f.sigma}
+        else:
+            notes.append(f"{r}: no common reflectors with {reference}: calibrated against the LiDAR only")
+    # --- step 4: filter detections in the reference frame (A/B/C) -------------------------------------------------
+    filter_counts = {}
+    merged = []  # per scene: (means (K,2) in ref frame, is_multi (K,))
+    for sc in scenes:
+        pts = [pose_ref[r].apply(_desl(r, sc.radar_xy.get(r, np.zeros((0, 2))))) if r in pose_ref else np.zeros((0, 2)) for r in radar_names]
+        fr = filter_detections(pts, forward, lateral, gate)
+        filter_counts[sc.name] = fr.counts()
+        nb = int((fr.cluster_radars >= 2).sum())
+        if nb < 2:
+            notes.append(f"scene {sc.name}: {nb} reflector(s) seen by two or more radars (set B): set A used for the LiDAR match")
+        if len(fr.C) > len(fr.B):
+            notes.append(f"scene {sc.name}: more single-radar detections (C = {len(fr.C)}) than multi-radar ones (B = {len(fr.B)}): ghosts or radars that see too little")
+        merged.append((fr.cluster_means, fr.cluster_radars >= 2))
+    # --- step 5: LiDAR <-> reference radar (theta2, a2, b2) with B (+ C consistent with the LiDAR) ----------------
+    init_ref_G = init_G.get(reference)
+    b_sets = [means[multi] if multi.sum() >= 2 else means for means, multi in merged]  # patent: keep B; too few -> A
+    pairs_l, _ = robust_match_sets(b_sets, [p[:, :2] for p in lidar_G], init=init_ref_G, gate=gate)
+    src = [b[p[:, 0]] for b, p in zip(b_sets, pairs_l) if len(p)]
+    dst = [g[p[:, 1], :2] for g, p in zip(lidar_G, pairs_l) if len(p)]
+    if sum(len(x) for x in src) < 2:
+        raise ValueError("fewer than 2 reflectors matched between the LiDAR and the radars")
+    f_ref = fit_rigid_2d(np.concatenate(src), np.concatenate(dst))  # ref radar -> G
+    patent_G = {r: f_ref.pose.compose(pose_ref[r]) for r in pose_ref}
+    # --- per radar: final model fit (slant), robust re-matching, outliers -----------------------------------------
+    results: dict[str, RadarResult] = {}
+    pose_G = dict(patent_G)
+    for r in radar_names:
+        if r in pose_G and r in init_G:  # a patent chain far from the radar's own guess: a wrong match, start from the guess
+            d_th = abs(float(_wrap(pose_G[r].theta - init_G[r].theta)))
+            d_t = float(np.linalg.norm(pose_G[r].t - init_G[r].t))
+            if d_th > np.radians(10.0) or d_t > 0.5:
+                notes.append(f"{r}: the radar-radar chain is {np.degrees(d_th):.1f} deg / {d_t:.2f} m from its initial_T_main: matched from the guess instead")
+                pose_G[r] = init_G[r]
+        if r not in pose_G:
+            if r in init_G:
+                pose_G[r] = init_G[r]
+            else:
+                notes.append(f"{r}: no initial pose and no radar-radar link: skipped")
+                continue
+    fits: dict[str, Fit2D] = {}
+    keepinfo: dict[str, tuple] = {}
+    for r in list(pose_G):
+        h = heights[r] if heights[r] is not None else h_guess
+        for _ in range(3):
+            s_, d_, z_, info, rc_, n_ = _obs_for_radar(scenes, lidar_G, r, pose_G[r], h, gate, slant)
+            if len(s_) < 2:
+                break
+            w_ = rcs_weights(rc_) * n_  # a mean of n frames counts n times
+            kw = _fit_kw(slant, heights[r], h)
+            keep, rej = reject_outliers(s_, d_, threshold=outlier_threshold, weights=w_, k_sigma=K_SIGMA, **({**kw, "src_z": z_} if slant else kw))
+            f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, weights=w_[keep], **kw)
+            # f maps G -> radar; pose_G is radar -> G
+            new = f.pose.inverse()
+            h = f.height if f.height is not None else h
+            converged = abs(_wrap(new.theta - pose_G[r].theta)) < 1e-10 and np.allclose(new.t, pose_G[r].t, atol=1e-9)
+            pose_G[r] = new
+            fits[r] = f
+            keepinfo[r] = (s_, d_, z_, info, keep, rej, kw, w_, rc_)
+            if converged:
+                break
+        if r not in fits:
+            notes.append(f"{r}: fewer than 2 reflectors matched to the LiDAR: not calibrated")
+        if r in fits and heights[r] is None and slant:
+            # only |dz| is observable, but the slant model is not exactly symmetric: try the mirror height too
+            s_, d_, z_, info, keep, rej, kw, w_, rc_ = keepinfo[r]
+            zc = float(np.average(z_[keep], weights=w_[keep]))
+            g = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep], weights=w_[keep], estimate_height=True, height_init=2 * zc - fits[r].height)
+            if g.rms < fits[r].rms - 1e-9:
+                fits[r] = g
+                pose_G[r] = g.pose.inverse()
+            heights[r] = float(fits[r].height)
+    # --- joint refinement: all radars at once, radar-only reflectors as free 2D points ----------------------------
+    joint_info = {"enabled": bool(joint), "free_points": 0, "n_obs": 0}
+    if joint and len(fits) >= 2:
+        ref_inv = pose_G[reference].inverse() if reference in pose_G else Pose2(0.0, np.zeros(2))
+
+        def in_region(p_G):
+            q = ref_inv.apply(p_G)
+            inside = (q[:, 0] > forward[0]) & (q[:, 0] < forward[1]) & (q[:, 1] > lateral[0]) & (q[:, 1] < lateral[1])
+            if lidar_range_gate is not None:  # inside the LiDAR's range gate a reflector would have a LiDAR cluster
+                inside &= np.linalg.norm(p_G, axis=1) > lidar_range_gate - 0.2
+            return inside
+
+        pose_G, heights, joint_info = _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate, z_nominal, in_region)
+    # --- results ------------------------------------------------------------------------------------------------
+    for r in fits:
+        s_, d_, z_, info, keep, rej, kw, w_, rc_ = keepinfo[r]
+        h = heights[r]
+        kw2 = _fit_kw(slant, h, h)
+        # LiDAR-anchored fit at the final height: sigma and leave-one-out; the pose is the joint one (same when no
+        # radar-only reflectors exist)
+        f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, init=pose_G[r].inverse(), weights=w_[keep], **kw2)
+        if not joint_info.get("free_points"):
+            pose_G[r] = f.pose.inverse()
+        else:  # the joint pose must agree with the radar's own LiDAR-anchored fit (radar-only points can be wrong)
+            jp = pose_G[r].inverse()
+            dx = np.array([float(_wrap(jp.theta - f.pose.theta)), *(jp.t - f.pose.t)])
+            try:
+                d2 = float(dx @ np.linalg.solve(f.cov[:3, :3], dx))
+            except np.linalg.LinAlgError:
+                d2 = np.inf
+            if d2 > 11.34:  # chi-square, 3 dof, 99 %
+                notes.append(f"{r}: the joint refinement moved it {np.sqrt(d2):.1f} sigma from its own LiDAR-anchored fit: that fit kept")
+                pose_G[r] = f.pose.inverse()
+        loo = leave_one_out(s_[keep], d_[keep], weights=w_[keep], **({**kw2, "src_z": z_[keep]} if slant else kw2))
+        q = pose_G[r].inverse().apply(s_)
+        pred = slant_predict(q, z_ - h) if slant else q
+        res_vec = d_ - pred
+        resid = np.linalg.norm(res_vec, axis=1)
+        f.residuals = res_vec[keep]
+        f.rms = float(np.sqrt(np.mean(resid[keep] ** 2))) if keep.any() else float("nan")
+        kidx = np.cumsum(keep) - 1
+        per = []
+        for k, (scn, i, j) in enumerate(info):  # per reflector observation (few)
+            per.append({"scene": scn, "lidar_index": i, "radar_index": j, "radar_xy": d_[k], "residual_m": float(resid[k]), "used": bool(keep[k]),
+                        "holdout_residual_m": float(loo["holdout_residuals"][kidx[k]]) if keep[k] and len(loo["holdout_residuals"]) else float("nan")})
+        mh = h if h is not None else 0.0
+        T_G_radar = pose2_to_T(pose_G[r], mh if slant else 0.0)
+        results[r] = RadarResult(r, pose_G[r], mh, T_lidar_G @ T_G_radar, f, radar_radar.get(r, {}).get("pose_ref"), per, loo,
+                                 [(info[i], why) for i, why in rej], patent_G.get(r), _inverse_sigma(f))
+    allxy = np.concatenate([np.asarray(v, float).reshape(-1, 2) for s in scenes for v in (s.raw_radar_xy or s.radar_xy).values()]) if scenes else np.zeros((0, 2))
+    return RigCalibration(T_lidar_G, results, filter_counts, radar_radar, joint_info, quantisation_report(allxy), model, notes)
+
+
+def _inverse_sigma(f: Fit2D) -> dict:
+    """Sigma of the inverse pose's (theta, a, b) by first-order propagation of ``f.cov`` (fit maps G -> radar)."""
+    th, t = f.pose.theta, f.pose.t
+    R = rot2(th)
+    dR = np.array([[-np.sin(th), -np.cos(th)], [np.cos(th), -np.sin(th)]])
+    J = np.zeros((3, 3))
+    J[0, 0] = -1.0
+    J[1:, 0] = -dR.T @ t
+    J[1:, 1:] = -R.T
+    C = J @ f.cov[:3, :3] @ J.T
+    out = {k: float(np.sqrt(max(C[i, i], 0.0))) for i, k in enumerate(["theta", "a", "b"])}
+    if "height" in f.sigma:
+        out["height"] = f.sigma["height"]
+    return out
+
+
+def _fit_kw(slant: bool, known_h, h_guess) -> dict:
+    if not slant:
+        return {}
+    if known_h is None:
+        return {"estimate_height": True, "height_init": float(h_guess)}
+    return {"height": float(known_h)}
+
+
+def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate, z_nominal, in_region):
+    """All radar poses at once. Observations: every radar's matched LiDAR reflectors (kept ones), plus detections of
+    reflectors that two or more radars see but the LiDAR does not (free 2D points at the median reflector height)."""
+    names = list(fits)
+    # free points: per scene, cluster unmatched detections (in G under current poses) seen by >= 2 radars
+    free_obs = []  # (radar index, free point index, measurement)
+    free_init = []
+    for si, sc in enumerate(scenes):
+        pts, rid, mids = [], [], []
+        for k, r in enumerate(names):
+            m = np.asarray(sc.radar_xy.get(r, np.zeros((0, 2))), float).reshape(-1, 2)
+            if len(m) == 0:
+                continue
+            used = {j for (scn, i, j), kp in zip(keepinfo[r][3], keepinfo[r][4]) if scn == sc.name}
+            un = np.array([j for j in range(len(m)) if j not in used], int)
+            rc = (sc.radar_rcs or {}).get(r)
+            if rc is not None and len(un) and np.isfinite(keepinfo[r][8]).any():
+                # weak echoes (clutter, multipath) are not radar-only reflectors
+                un = un[np.asarray(rc, float)[un] >= np.nanpercentile(keepinfo[r][8], 10) - 6.0]
+            if len(un) == 0:
+                continue
+            h = heights[r] if heights[r] is not None else 0.0
+            mg = pose_G[r].apply(deslant(m[un], z_nominal - h) if slant else m[un])
+            inside = in_region(mg)
+            un, mg = un[inside], mg[inside]
+            if len(un) == 0:
+                continue
+            pts.append(mg), rid.append(np.full(len(un), k)), mids.append(m[un])
+        if not pts:
+            continue
+        fr = filter_detections([np.concatenate(pts)[np.concatenate(rid) == k] for k in range(len(names))], (-np.inf, np.inf), (-np.inf, np.inf), gate)
+        allm = np.concatenate(mids)
+        allr = np.concatenate(rid)
+        order = np.argsort(allr, kind="stable")  # filter_detections concatenates radar by radar
+        allm, allr = allm[order], allr[order]
+        for c in np.nonzero(fr.cluster_radars >= 2)[0]:
+            members = np.nonzero(fr.cluster == c)[0]
+            if len(np.unique(allr[members])) != len(members):
+                continue  # two detections of one radar in a cluster: ambiguous, skip
+            fid = len(free_init)
+            free_init.append(fr.cluster_means[c])
+            for mi in members:
+                free_obs.append((int(allr[mi]), fid, allm[mi]))
+    est_h = [slant and heights[r] is None for r in names]
+    nr = len(names)
+    x0 = np.concatenate([np.concatenate([pose_G[r].as_array() for r in names]), np.array([heights[r] or 0.0 for r in names]), np.array(free_init).ravel()])
+    anchored = []
+    for k, r in enumerate(names):
+        s_, d_, z_, _info, keep, _rej, _kw, w_, _ = keepinfo[r]
+        anchored.append((k, s_[keep], d_[keep], z_[keep], np.sqrt(w_[keep])[:, None]))
+    fo_r = np.array([o[0] for o in free_obs], int)
+    fo_f = np.array([o[1] for o in free_obs], int)
+    fo_m = np.array([o[2] for o in free_obs]).reshape(-1, 2)
+    fixed_h = np.array([heights[r] if heights[r] is not None else 0.0 for r in names])
+
+    def unpack(x):
+        P = x[:3 * nr].reshape(nr, 3)
+        H = np.where(est_h, x[3 * nr:4 * nr], fixed_h)
+        F = x[4 * nr:].reshape(-1, 2)
+        return P, H, F
+
+    def pred_radar(P, H, k, pg_xy, pz):
+        inv = Pose2(P[k, 0], P[k, 1:]).inverse()
+        q = inv.apply(pg_xy)
+        return slant_predict(q, pz - H[k]) if slant else q
+
+    def resid(x):
+        P, H, F = unpack(x)
+        out = []
+        for k, s_, d_, z_, sw in anchored:  # loop over radars
+            out.append(((pred_radar(P, H, k, s_, z_) - d_) * sw).ravel())
+        for k in range(nr):
+            sel = fo_r == k
+            if sel.any():
+                out.append((pred_radar(P, H, k, F[fo_f[sel]], np.full(sel.sum(), z_nominal)) - fo_m[sel]).ravel())
+        return np.concatenate(out)
+
+    free_mask = np.ones(len(x0), bool)
+    free_mask[3 * nr:4 * nr] = est_h
+    all_r, all_f, all_m = fo_r, fo_f, fo_m
+    dropped: set = set()
+    for _round in range(4):  # solve; drop radar-only points that do not fit (multipath, clutter seen twice); again
+        live = np.array([f not in dropped for f in all_f], bool)
+        fo_r, fo_f, fo_m = all_r[live], all_f[live], all_m[live]
+        mask = free_mask.copy()
+        for f in dropped:
+            mask[4 * nr + 2 * f:4 * nr + 2 * f + 2] = False
+
+        def resid_free(xf, mask=mask):
+            x = x0.copy()
+            x[mask] = xf
+            return resid(x)
+
+        sol = least_squares(resid_free, x0[mask], method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
+        x = x0.copy()
+        x[mask] = sol.x
+        P, H, F = unpack(x)
+        anch = np.concatenate([((pred_radar(P, H, k, s_, z_) - d_) * sw).ravel() for k, s_, d_, z_, sw in anchored]) if anchored else np.zeros(0)
+        scale = max(float(np.sqrt(np.mean(anch**2) * 2)) if len(anch) else 0.0, 0.01)
+        bad = set()
+        for k in range(nr):
+            sel = fo_r == k
+            if sel.any():
+                e = np.linalg.norm(pred_radar(P, H, k, F[fo_f[sel]], np.full(sel.sum(), z_nominal)) - fo_m[sel], axis=1)
+                bad |= {int(f) for f, ei in zip(fo_f[sel], e) if ei > 4 * scale}
+        if not bad:
+            break
+        dropped |= bad
+    free_init = [f for i, f in enumerate(free_init) if i not in dropped]
+    P, H, F = unpack(x)
+    new_pose = {r: Pose2(float(_wrap(P[k, 0])), P[k, 1:].copy()) for k, r in enumerate(names)}
+    new_h = {r: (float(H[k]) if (slant or heights[r] is not None) else None) for k, r in enumerate(names)}
+    for r in heights:
+        if r not in new_h:
+            new_h[r] = heights[r]
+    rr = resid(x)
+    return new_pose, new_h, {"enabled": True, "free_points": len(free_init), "free_points_dropped": len(dropped), "n_obs": int(len(rr) // 2), "rms": float(np.sqrt(np.mean(rr.reshape(-1, 2) ** 2) * 2)) if len(rr) else 0.0}
+
+
+def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_gate: float = 4.0, ground_tol: float = 0.05, cluster_tol: float = 0.12,
+                    head_size: float = 0.35, offset: float = 0.0, aggregate: bool = True, aggregate_gate: float = 0.3, radar_rcs: dict | None = None,
+                    edge: float | None = None, intensity: np.ndarray | None = None) -> tuple[SceneObs, ReflectorExtraction, dict]:
+    """One placement's observations from raw arrays: reflector extraction on the main LiDAR cloud (``edge``: the
+    trihedral's edge when known, ``intensity`` per point when the cloud has it) and, when a radar reported several
+    frames, averaging of its repeated detections (:func:`aggregate_frames`, split by RCS when ``radar_rcs`` gives
+    it). Returns the :class:`SceneObs`, the extraction details and per-radar frame counts."""
+    ext = extract_reflectors(main_points, range_gate=range_gate, ground_tol=ground_tol, cluster_tol=cluster_tol, head_size=head_size, offset=offset,
+                             edge=edge, intensity=intensity)
+    out, counts, rcs_out = {}, {}, {}
+    for r, xy in radar_xy.items():
+        xy = np.asarray(xy, float).reshape(-1, 2)
+        rc = None if radar_rcs is None or radar_rcs.get(r) is None else np.asarray(radar_rcs[r], float).reshape(-1)
+        if rc is not None and not np.isfinite(rc).any():
+            rc = None
+        if aggregate and len(xy):
+            if rc is not None:
+                means, c, rm = aggregate_frames(xy, gate=aggregate_gate, rcs=rc)
+            else:
+                (means, c), rm = aggregate_frames(xy, gate=aggregate_gate), None
+            if c.max() > 1:
+                out[r], counts[r], rcs_out[r] = means, c, rm
+                continue
+        out[r], counts[r], rcs_out[r] = xy, np.ones(len(xy), int), rc
+    raw = {r: np.asarray(xy, float).reshape(-1, 2) for r, xy in radar_xy.items()}
+    return SceneObs(name, ext.centres, out, ext.ground, raw, rcs_out, counts), ext, counts

@@ -1,0 +1,73 @@
+"""Leave-one-out cross-validation and outlier rejection of a 2D radar fit."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radarcal.extrinsics.radar.geometry2d import fit_rigid_2d, slant_predict
+from radarcal.extrinsics.radar.geometry2d import wrap_angle as _wrap
+
+__all__ = ["leave_one_out", "reject_outliers"]
+
+
+def leave_one_out(src: np.ndarray, dst: np.ndarray, **fit_kw) -> dict:
+    """Refit without each correspondence in turn: its prediction error (hold-out residual), the parameter spread
+    and the jackknife standard errors of (theta, a, b)."""
+    src = np.asarray(src, float).reshape(-1, 2)
+    dst = np.asarray(dst, float).reshape(-1, 2)
+    n = len(src)
+    min_n = 3 if fit_kw.get("estimate_height") else 2
+    if n <= min_n:
+        return {"n": n, "holdout_residuals": np.full(n, np.nan), "holdout_rms": float("nan"), "params": np.zeros((0, 3)), "jackknife_sigma": {}}
+    z = fit_kw.pop("src_z", None)
+    w = fit_kw.pop("weights", None)
+    w = None if w is None else np.asarray(w, float)
+    res = np.zeros(n)
+    params = np.zeros((n, 3))
+    for i in range(n):  # loop over reflectors (few)
+        m = np.arange(n) != i
+        f = fit_rigid_2d(src[m], dst[m], src_z=None if z is None else np.asarray(z)[m], weights=None if w is None else w[m], **fit_kw)
+        q = f.pose.apply(src[i:i + 1])
+        pred = q if z is None else slant_predict(q, np.asarray(z)[i] - f.height)
+        res[i] = float(np.linalg.norm(pred[0] - dst[i]))
+        params[i] = f.pose.as_array()
+    params[:, 0] = params[0, 0] + _wrap(params[:, 0] - params[0, 0])
+    jk = np.sqrt((n - 1) / n * np.sum((params - params.mean(axis=0)) ** 2, axis=0))
+    return {"n": n, "holdout_residuals": res, "holdout_rms": float(np.sqrt(np.mean(res**2))), "params": params,
+            "std": {"theta": float(params[:, 0].std()), "a": float(params[:, 1].std()), "b": float(params[:, 2].std())},
+            "jackknife_sigma": {"theta": float(jk[0]), "a": float(jk[1]), "b": float(jk[2])}}
+
+
+def reject_outliers(src: np.ndarray, dst: np.ndarray, threshold: float = 0.15, min_keep: int = 3, k_sigma: float = 4.0, **fit_kw) -> tuple[np.ndarray, list]:
+    """Iteratively drop the correspondence with the largest leave-one-out residual (leverage formula to pick it, an
+    exact refit without it to test it) while that hold-out residual exceeds both ``threshold`` (m) and ``k_sigma``
+    times the RMS residual of the fit without it. Returns (keep mask, [(index, reason)])."""
+    src = np.asarray(src, float).reshape(-1, 2)
+    dst = np.asarray(dst, float).reshape(-1, 2)
+    keep = np.ones(len(src), bool)
+    reasons = []
+    z = fit_kw.pop("src_z", None)
+    zz = None if z is None else np.asarray(z, float)
+    w = fit_kw.pop("weights", None)
+    w = np.ones(len(src)) if w is None else np.asarray(w, float)
+    n_par = 4 if fit_kw.get("estimate_height") else 3
+    while keep.sum() > max(min_keep, 2) and 2 * (keep.sum() - 1) > n_par:
+        idx = np.nonzero(keep)[0]
+        f = fit_rigid_2d(src[idx], dst[idx], src_z=None if zz is None else zz[idx], weights=w[idx], **fit_kw)
+        if f.rms <= threshold / k_sigma / 4:
+            break  # everything already fits far below the threshold
+        r = f.deletion_residuals()
+        j = int(np.nanargmax(np.where(np.isfinite(r), r, -1)))
+        rest = np.delete(idx, j)
+        g = fit_rigid_2d(src[rest], dst[rest], src_z=None if zz is None else zz[rest], init=f.pose, weights=w[rest], **fit_kw)
+        q = g.pose.apply(src[idx[j]][None])
+        pred = q if zz is None else slant_predict(q, zz[idx[j]] - g.height)
+        rj = float(np.linalg.norm(pred[0] - dst[idx[j]]))
+        scale = float(np.sqrt(np.mean(w[rest] * np.sum(g.residuals**2, axis=1))))  # RMS at unit weight
+        if rj > threshold and rj * np.sqrt(w[idx[j]]) > k_sigma * scale:
+            keep[idx[j]] = False
+            reasons.append((int(idx[j]), f"hold-out residual {rj:.3f} m > {threshold:g} m and > {k_sigma:g}x the others' RMS ({g.rms:.3f} m)"))
+        else:
+            break
+    return keep, reasons
+

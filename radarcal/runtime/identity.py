@@ -1,0 +1,130 @@
+"""Identities from the camera: LiDAR tracks matched with detection boxes, label votes per track.
+
+Each track's cluster hull (its points' extent, moved by its velocity to the frame time, down to the surface) is
+projected into the camera; in depth order (nearest first) each projected box loses the cells that nearer tracks
+already cover, which leaves the part of it the camera can see — a detector boxes that part only. Boxes and visible
+parts are matched by Hungarian assignment on overlap (both ways) and centre distance, with a margin that follows the
+calibration's rotation sigma (0.3 deg is 6 px at f = 1100). A matched box adds its score to the track's vote for its
+label; a track's votes decay by ``decay`` each time it is boxed (not with time: a robot hidden from the camera but
+seen by the LiDAR keeps its label). Labels are then given out greedily by vote, one track per label, when the
+vote reaches ``min_vote`` and beats the runner-up by ``ratio``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radarcal.camera import Camera
+
+__all__ = ["project_tracks", "visible_parts", "match_boxes", "add_votes", "assign_labels"]
+
+
+def project_tracks(camera: Camera, T_cam_field: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Image boxes (T,4) of axis-aligned field boxes ``lo``/``hi`` (T,3) and the camera depth of their centres (T,);
+    NaN rows where a box is behind the camera or out of the image."""
+    T = len(lo)
+    if T == 0:
+        return np.zeros((0, 4)), np.zeros(0)
+    sel = np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T  # (8,3)
+    C = np.where(sel[None].astype(bool), hi[:, None], lo[:, None])  # (T,8,3)
+    uv, valid, z = camera.project_from(T_cam_field, C.reshape(-1, 3))
+    uv = uv.reshape(T, 8, 2)
+    ok = valid.reshape(T, 8).all(1) & (z.reshape(T, 8) > 0.3).all(1)
+    box = np.column_stack([uv[..., 0].min(1), uv[..., 1].min(1), uv[..., 0].max(1), uv[..., 1].max(1)])
+    w, h = camera.image_size
+    box = np.column_stack([np.clip(box[:, 0], -0.5, w - 0.5), np.clip(box[:, 1], -0.5, h - 0.5), np.clip(box[:, 2], -0.5, w - 0.5), np.clip(box[:, 3], -0.5, h - 0.5)])
+    ok &= (box[:, 2] - box[:, 0] >= 1) & (box[:, 3] - box[:, 1] >= 1)
+    box[~ok] = np.nan
+    centre = 0.5 * (lo + hi)
+    zc = (centre @ T_cam_field[:3, :3].T + T_cam_field[:3, 3])[:, 2]
+    return box, np.where(ok, zc, np.nan)
+
+
+def visible_parts(full: np.ndarray, depth: np.ndarray, cell: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+    """Visible part (T,4) of each projected box after nearer boxes hide theirs (coarse cells of ``cell`` px), and
+    the visible fraction (T,). One mask per track (tracks are few); cells are vectorised."""
+    T = len(full)
+    vis = np.full((T, 4), np.nan)
+    frac = np.zeros(T)
+    ok = np.flatnonzero(np.isfinite(depth))
+    if not len(ok):
+        return vis, frac
+    x0, y0 = np.nanmin(full[ok, 0]), np.nanmin(full[ok, 1])
+    x1, y1 = np.nanmax(full[ok, 2]), np.nanmax(full[ok, 3])
+    nx, ny = int(np.ceil((x1 - x0) / cell)) + 1, int(np.ceil((y1 - y0) / cell)) + 1
+    if nx * ny > 4_000_000:
+        cell = float(np.sqrt((x1 - x0) * (y1 - y0) / 4_000_000)) + 1
+        nx, ny = int(np.ceil((x1 - x0) / cell)) + 1, int(np.ceil((y1 - y0) / cell)) + 1
+    taken = np.zeros((ny, nx), bool)
+    for k in ok[np.argsort(depth[ok])]:
+        a0, b0 = int((full[k, 0] - x0) / cell), int((full[k, 1] - y0) / cell)
+        a1, b1 = int(np.ceil((full[k, 2] - x0) / cell)), int(np.ceil((full[k, 3] - y0) / cell))
+        sub = ~taken[b0:b1, a0:a1]
+        if sub.size == 0:
+            continue
+        frac[k] = sub.mean()
+        if sub.any():
+            rows = np.flatnonzero(sub.any(1))
+            cols = np.flatnonzero(sub.any(0))
+            vis[k] = [x0 + (a0 + cols[0]) * cell, y0 + (b0 + rows[0]) * cell, min(x0 + (a0 + cols[-1] + 1) * cell, full[k, 2]), min(y0 + (b0 + rows[-1] + 1) * cell, full[k, 3])]
+            vis[k, 0], vis[k, 1] = max(vis[k, 0], full[k, 0]), max(vis[k, 1], full[k, 1])
+        taken[b0:b1, a0:a1] = True
+    return vis, frac
+
+
+def _overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection areas (A,B) of boxes (A,4), (B,4)."""
+    w = np.clip(np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0]), 0, None)
+    h = np.clip(np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1]), 0, None)
+    return w * h
+
+
+def match_boxes(vis: np.ndarray, boxes: np.ndarray, pad_px: float = 4.0, min_quality: float = 0.3) -> list[tuple[int, int, float]]:
+    """Hungarian matching of visible parts (T,4) (NaN: none) with detection boxes (B,4): (track, box, quality)."""
+    from scipy.optimize import linear_sum_assignment
+
+    T, B = len(vis), len(boxes)
+    if T == 0 or B == 0:
+        return []
+    good = np.isfinite(vis[:, 0])
+    v = np.where(good[:, None], vis, 0.0) + np.array([-pad_px, -pad_px, pad_px, pad_px])
+    inter = _overlap(v, boxes)
+    area_v = (v[:, 2] - v[:, 0]) * (v[:, 3] - v[:, 1])
+    area_b = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+    cov_b = inter / np.maximum(area_b[None], 1e-9)
+    cov_v = inter / np.maximum(area_v[:, None], 1e-9)
+    cv = np.column_stack([(v[:, 0] + v[:, 2]) / 2, (v[:, 1] + v[:, 3]) / 2])
+    cb = np.column_stack([(boxes[:, 0] + boxes[:, 2]) / 2, (boxes[:, 1] + boxes[:, 3]) / 2])
+    diag = np.hypot(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1])
+    dist = np.linalg.norm(cv[:, None] - cb[None], axis=2) / np.maximum(diag[None], 1.0)
+    quality = 0.5 * (cov_b + np.minimum(cov_v * 1.25, 1.0)) - 0.25 * np.minimum(dist, 1.0)
+    quality[~good] = -1
+    r, c = linear_sum_assignment(-quality)
+    return [(int(i), int(j), float(quality[i, j])) for i, j in zip(r, c) if quality[i, j] >= min_quality]
+
+
+def add_votes(votes: dict, label: str, weight: float, decay: float = 0.93) -> None:
+    for k in list(votes):
+        votes[k] *= decay
+        if votes[k] < 0.02:
+            del votes[k]
+    votes[label] = votes.get(label, 0.0) + float(weight)
+
+
+def assign_labels(votes: list[dict], min_vote: float = 0.6, ratio: float = 1.5, live: list[bool] | None = None) -> list[str | None]:
+    """One label per track and one track per label, greedily by vote (strongest first; tracks the sensors see now,
+    ``live``, before lost ones: a robot found again by a new track takes its label back from the lost track)."""
+    live = live if live is not None else [True] * len(votes)
+    pairs = sorted(((bool(live[k]), v, k, lab) for k, vd in enumerate(votes) for lab, v in vd.items()), reverse=True)
+    pairs = [(v, k, lab) for _, v, k, lab in pairs]
+    out: list[str | None] = [None] * len(votes)
+    used: set[str] = set()
+    for v, k, lab in pairs:
+        if out[k] is not None or lab in used or v < min_vote:
+            continue
+        others = [w for l2, w in votes[k].items() if l2 != lab]
+        if others and v < ratio * max(others):
+            continue
+        out[k] = lab
+        used.add(lab)
+    return out

@@ -1,0 +1,214 @@
+"""LiDAR-first localisation: robots found in the cloud, identities from the camera (issue #15).
+
+Per cloud (:meth:`LidarFirst.add_cloud`): each point gets its firing time (the cloud's sweep and delivery latency
+are modelled: points in firing order, ``t_i = t_arrival - latency - sweep + sweep (i + 0.5) / N``); the static
+filter (:mod:`radarcal.runtime.background`) keeps the dynamic points, which join a short window of the last
+``window_sweeps`` sweeps; older points that lie on a track are moved along its velocity to the newest time (so
+integration does not smear moving robots); the window is clustered (:mod:`radarcal.runtime.clusters`) and the
+clusters update the 3D tracks (:class:`radarcal.runtime.tracks.Tracker3D`) at their own mean point time.
+
+Per camera frame (:meth:`LidarFirst.frame`): tracks' hulls projected into the image and matched with the boxes
+(:mod:`radarcal.runtime.identity`), label votes, labels given out; boxes with no track take the box path (box depth
+from the cloud queue, else the ground ray) as box-only fixes, which alone confirm a track only after several
+consistent frames; tracks are predicted to the frame time and returned.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from radarcal.geometry import invert_T
+from radarcal.runtime.background import StaticFilter, VoxelBackground, field_occupancy, range_sigma
+from radarcal.runtime.clusters import ClusterParams, cluster_points
+from radarcal.runtime.identity import add_votes, assign_labels, match_boxes, project_tracks, visible_parts
+from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Track3D, Tracker3D  # noqa: F401
+
+__all__ = ["LidarFirstConfig", "LidarFirst", "point_times"]
+
+
+@dataclass
+class LidarFirstConfig:
+    window_sweeps: int = 1  # clouds integrated (measured trade-off in docs/runtime.md: 1 is best here)
+    sweep_s: float = 0.1  # firing duration of one cloud (0: every point at the cloud time)
+    latency_s: float = 0.0  # sweep end -> cloud time stamp
+    learn_background: bool = True
+    bg_voxel_m: float = 0.2
+    bg_hits: float = 4.0  # decayed cloud count that makes a voxel background
+    bg_tau_s: float = 20.0
+    crop_inset_m: float = 0.05
+    sigma_rot_deg: float = 0.25  # calibration sigma the tolerances follow (bundle sigma when it has one)
+    sigma_trans_m: float = 0.03
+    compensate: bool = False  # move older window points along their track (measured worse: docs)
+    seen_lidar_s: float = 0.25  # a track counts as seen by the LiDAR this long after its last cluster
+    seen_box_s: float = 0.1
+
+
+def point_times(n: int, t_cloud: float, sweep_s: float, latency_s: float) -> np.ndarray:
+    """Firing time of each of ``n`` points delivered in firing order at ``t_cloud``."""
+    t_end = t_cloud - latency_s
+    if sweep_s <= 0 or n == 0:
+        return np.full(n, t_end)
+    return t_end - sweep_s + sweep_s * (np.arange(n) + 0.5) / n
+
+
+class LidarFirst:
+    def __init__(self, T_field_lidar: np.ndarray, field_model, cfg: LidarFirstConfig | None = None, params: ClusterParams | None = None,
+                 tracker: Tracker3D | None = None, camera=None, T_field_cam: np.ndarray | None = None):  # fmt: skip
+        self.cfg = cfg or LidarFirstConfig()
+        self.params = params or ClusterParams()
+        self.T_field_lidar = np.asarray(T_field_lidar, float)
+        self.sensor_xy = self.T_field_lidar[:2, 3].copy()
+        L, W = field_model.size if field_model is not None else (28.0, 15.0)
+        inset = self.cfg.crop_inset_m
+        occ = field_occupancy(field_model, (-1.0, -1.0, L + 1.0, W + 1.0))
+        bg = VoxelBackground((0.0, 0.0, -0.5, L, W, 3.5), self.cfg.bg_voxel_m, self.cfg.bg_tau_s, self.cfg.bg_hits) if self.cfg.learn_background else None
+        self.filter = StaticFilter(self.T_field_lidar, occ, bg, (inset, inset, L - inset, W - inset),
+                                   sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m)  # fmt: skip
+        self.tracker = tracker or Tracker3D()
+        self.window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(1, self.cfg.window_sweeps))
+        self.camera = camera
+        self.T_cam_field = invert_T(T_field_cam) if T_field_cam is not None else None
+        self.pad_px = 3.0 + (camera.fx * np.deg2rad(self.cfg.sigma_rot_deg) if camera is not None else 0.0)
+        self.protect_boxes: np.ndarray | None = None  # current detection boxes: their points are not learnt
+        self.last_clusters = None
+        self.fuse_box_depth = True
+        self.clouds = 0
+
+    # --- clouds ----------------------------------------------------------------------------------------------------
+    def add_cloud(self, t: float, points_lidar: np.ndarray) -> None:
+        pts = np.asarray(points_lidar, np.float32).reshape(-1, 3)
+        tp = point_times(len(pts), float(t), self.cfg.sweep_s, self.cfg.latency_s)
+        t_ref = float(tp[-1]) if len(tp) else float(t)
+        p, idx, bg = self.filter(pts, t_ref)
+        # learn: every off-field point except those on tracked robots and inside detection boxes
+        # (tracks a box has named or that have moved: a static unnamed cluster is what the background must learn)
+        prot_xy = np.array([tr.x[:2] + tr.x[2:] * (t_ref - tr.t) for tr in self.tracker.tracks if tr.state != TENTATIVE and tr.evidence]).reshape(-1, 2)
+        learn = p
+        if self.protect_boxes is not None and len(self.protect_boxes) and self.camera is not None and len(p):
+            uv, ok, _ = self.camera.project_from(self.T_cam_field, p.astype(float))
+            b = self.protect_boxes
+            inb = ((uv[:, None, 0] >= b[None, :, 0]) & (uv[:, None, 0] <= b[None, :, 2]) & (uv[:, None, 1] >= b[None, :, 1]) & (uv[:, None, 1] <= b[None, :, 3])).any(1)
+            learn = p[~(inb & ok)]
+        self.filter.learn(learn, t_ref, prot_xy)
+        dyn, tdyn = p[~bg], tp[idx[~bg]]
+        self.window.append((dyn, tdyn))
+        self._cluster(t_ref)
+        self.clouds += 1
+
+    def _cluster(self, t_ref: float) -> None:
+        P = np.vstack([w[0] for w in self.window]).astype(float) if self.window else np.zeros((0, 3))
+        Tm = np.concatenate([w[1] for w in self.window]) if self.window else np.zeros(0)
+        if self.cfg.compensate and len(P) and self.tracker.tracks:
+            old = Tm < t_ref - 0.5 * max(self.cfg.sweep_s, 0.05)
+            if old.any():
+                X = np.array([tr.x for tr in self.tracker.tracks])
+                t0 = np.array([tr.t for tr in self.tracker.tracks])
+                po, to = P[old], Tm[old]
+                at = X[None, :, :2] + X[None, :, 2:] * (to[:, None, None] - t0[None, :, None])  # (M,T,2) track at each point's time
+                d2 = ((po[:, None, :2] - at) ** 2).sum(-1)
+                k = np.argmin(d2, axis=1)
+                near = d2[np.arange(len(po)), k] < 0.6**2
+                shift = X[k, 2:] * (t_ref - to)[:, None]
+                po[near, :2] += shift[near]
+                to = np.where(near, t_ref, to)
+                P[old], Tm[old] = po, to
+        surf = self.filter.occupancy.surface_at(P) if len(P) else np.zeros(0)
+        cl = cluster_points(P, Tm, surf, self.sensor_xy, self.params)
+        self.last_clusters = cl
+        if len(cl):
+            s = range_sigma(cl.range_m, np.deg2rad(self.cfg.sigma_rot_deg), self.cfg.sigma_trans_m)
+            sigma = np.sqrt(0.05**2 + s**2 + (0.15 / np.sqrt(cl.n)) ** 2)
+            ext = cl.hi - cl.lo
+            hulls = [(cl.lo[j].copy(), cl.hi[j].copy()) for j in range(len(cl))]
+            self.tracker.update_clusters(cl.centre, sigma, cl.t, cl.aerial, ext, hulls, t_ref)
+
+    # --- camera frames ---------------------------------------------------------------------------------------------
+    def track_hulls(self, t: float) -> tuple[list[Track3D], np.ndarray, np.ndarray]:
+        """Tracks with a recent cluster and their field boxes (lo, hi) moved to time ``t``, at least robot-sized
+        across and reaching down to the track's surface height."""
+        trs, lo, hi = [], [], []
+        for tr in self.tracker.tracks:
+            if tr.hull is None or t - tr.t_lidar > 0.6:
+                continue
+            shift = np.r_[tr.x[2:] * (t - tr.t_points), 0.0]
+            a, b = tr.hull[0] + shift, tr.hull[1] + shift
+            c = 0.5 * (a[:2] + b[:2])
+            half = np.maximum(0.5 * (b[:2] - a[:2]), 0.22)
+            za = a[2] if tr.aerial else min(a[2], tr.z)
+            trs.append(tr)
+            lo.append(np.r_[c - half, za])
+            hi.append(np.r_[c + half, max(b[2], za + 0.3)])
+        return trs, np.array(lo).reshape(-1, 3), np.array(hi).reshape(-1, 3)
+
+    def frame(self, t: float, boxes: np.ndarray, labels: list[str], scores: np.ndarray, locate_boxes=None) -> list[Track3D]:
+        """One camera frame at ``t``: identities from ``boxes`` (B,4) with ``labels``/``scores``; boxes matched to no
+        track go to ``locate_boxes(indices) -> (p_field (K,3), sigma (K,), source (K,))`` (None: LiDAR only).
+        Returns the confirmed and lost tracks with evidence (:attr:`Track3D.evidence`) predicted to ``t``
+        (``tr.last_box``: the box matched this frame)."""
+        tk = self.tracker
+        for tr in tk.tracks:
+            tr.last_box = None
+        matched_boxes: set[int] = set()
+        self.protect_boxes = boxes if len(boxes) else None
+        if self.camera is not None and len(boxes):
+            trs, lo, hi = self.track_hulls(t)
+            if trs:
+                full, depth = project_tracks(self.camera, self.T_cam_field, lo, hi)
+                vis, _ = visible_parts(full, depth)
+                for k, j, q in match_boxes(vis, boxes, self.pad_px):
+                    tr = trs[k]
+                    tr.last_box = j
+                    matched_boxes.add(j)
+                    add_votes(tr.votes, labels[j], float(scores[j]) * min(1.0, q + 0.3))
+        # a box matched to a track also gives a box-depth fix: the camera ray is not turned by the LiDAR-camera
+        # rotation error, so near the track's prediction it is the better measurement and both update the filter;
+        # one far from the prediction took its depth from something else (a robot in front) and is ignored
+        if matched_boxes and locate_boxes is not None and self.fuse_box_depth:
+            idx = sorted(matched_boxes)
+            p, sig, src = locate_boxes(idx)
+            for n, j in enumerate(idx):
+                tr = next(o for o in tk.tracks if o.last_box == j)
+                if str(src[n]) != "depth" or not np.all(np.isfinite(p[n, :2])) or tr.aerial:
+                    continue
+                d = float(np.linalg.norm(tr.x[:2] + tr.x[2:] * (t - tr.t) - p[n, :2]))
+                if d <= 0.35 + 2.0 * np.hypot(tr.sigma, float(sig[n])):
+                    tk._update(tr, p[n, :2], float(sig[n]), t, tr.z, "depth")
+                    tr.n_box, tr.t_box = tr.n_box + 1, t
+        # box-only fixes for the boxes no LiDAR track explains
+        rest = [j for j in range(len(boxes)) if j not in matched_boxes]
+        if rest and locate_boxes is not None:
+            p, sig, src = locate_boxes(rest)
+            holder = {tr.label: tr for tr in tk.tracks if tr.label is not None}
+            for n, j in enumerate(rest):
+                if str(src[n]) == "none" or not np.all(np.isfinite(p[n, :2])):
+                    continue
+                tr = holder.get(labels[j])
+                if tr is not None and t - tr.t_lidar < 0.3:
+                    continue  # the LiDAR sees that robot: a box-only fix would only add the box path's errors
+                # a LiDAR track where the box puts the robot (its projection missed the box): identity by position
+                near = [o for o in tk.tracks if o.n_lidar and t - o.t_lidar < 0.3 and o.label in (None, labels[j])
+                        and np.linalg.norm(o.x[:2] + o.x[2:] * (t - o.t) - p[n, :2]) < 0.8]  # fmt: skip
+                if near:
+                    near[0].last_box = j
+                    add_votes(near[0].votes, labels[j], 0.5 * float(scores[j]))
+                    continue
+                got = tk.update_box(labels[j], p[n, :2], float(sig[n]), t, float(p[n, 2]), str(src[n]), tr)
+                if got is not None:
+                    got.last_box = j
+                    add_votes(got.votes, labels[j], float(scores[j]))
+        tk.step(t)
+        names = assign_labels([tr.votes for tr in tk.tracks], live=[tr.state != LOST for tr in tk.tracks])
+        for tr, lab in zip(tk.tracks, names):
+            tr.label = lab
+        return [tr for tr in tk.tracks if tr.state in (CONFIRMED, LOST) and tr.evidence]
+
+    def seen_source(self, tr: Track3D, t: float) -> str:
+        """``lidar`` / ``depth`` / ``ground`` when this frame has evidence for the track, else ``predicted``."""
+        if t - tr.t_lidar <= self.cfg.seen_lidar_s:
+            return "lidar"
+        if t - tr.t_box <= self.cfg.seen_box_s:
+            return tr.source if tr.source in ("depth", "ground") else "depth"
+        return "predicted"

@@ -1,0 +1,305 @@
+"""The per-frame core of ``radarcal run`` (arrays in, :class:`FrameResult` out, no I/O).
+
+Two ways to localise, chosen by ``RunConfig.localise`` (``--localise``):
+
+* ``box``: the 2021-2022 way (NUAA report) — a box, then the depth of the LiDAR points inside it
+  (:mod:`radarcal.runtime.fusion`), else the ground ray (:mod:`radarcal.runtime.localise`), one Kalman track per label
+  (:class:`radarcal.runtime.tracks.TrackManager`).
+* ``lidar`` / ``auto`` (default): robots found in the cloud and tracked in 3D, identities from the boxes
+  (:mod:`radarcal.runtime.lidar_first`); ``auto`` adds box-only fixes (box depth, then ground ray) for boxes that no
+  LiDAR track explains. Without a camera (no detections) it is LiDAR only: every track unlabelled.
+
+Outputs mark what is a prediction: ``source`` is ``lidar`` / ``depth`` / ``ground`` when this frame has evidence,
+``predicted`` when not (and ``"predicted": true``); unlabelled tracks carry ``"label": null``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from radarcal.bundle import Bundle
+from radarcal.runtime import referee as rp
+from radarcal.runtime.config import LOCALISE_MODES, RunConfig
+from radarcal.runtime.detector import Detection
+from radarcal.runtime.fusion import CloudQueue, SurfaceFilter
+from radarcal.runtime.localise import Localiser
+from radarcal.runtime.tracks import TrackManager
+
+__all__ = ["RunConfig", "RobotOut", "FrameResult", "Pipeline", "LOCALISE_MODES"]
+
+@dataclass
+class RobotOut:
+    label: str | None  # None: a LiDAR track no box has named (yet)
+    p_field: np.ndarray  # (3,) filtered position
+    source: str  # lidar | depth | ground | predicted (no measurement this frame)
+    sigma: float
+    depth: float | None
+    score: float | None
+    raw: np.ndarray | None  # (3,) this frame's unfiltered measurement
+    track_id: int | None = None
+    state: str | None = None  # tentative | confirmed | lost (LiDAR-first tracks)
+    velocity: np.ndarray | None = None
+    t_seen: float | None = None
+    votes: dict = field(default_factory=dict)
+    dead: bool = False  # its armour was grey when last seen: tracked, never sent as a target
+
+    @property
+    def predicted(self) -> bool:
+        return self.source == "predicted"
+
+    @property
+    def key(self) -> str:
+        """Label, or ``#<track id>`` for an unlabelled track (minimap trails, status)."""
+        return self.label if self.label is not None else f"#{self.track_id}"
+
+    def to_dict(self) -> dict:
+        d = {"label": self.label, "x": round(float(self.p_field[0]), 3), "y": round(float(self.p_field[1]), 3), "z": round(float(self.p_field[2]), 3),
+             "source": self.source, "predicted": self.predicted, "sigma": round(self.sigma, 3) if np.isfinite(self.sigma) else None,
+             "depth": None if self.depth is None else round(self.depth, 3)}  # fmt: skip
+        if self.track_id is not None:
+            d["id"] = self.track_id
+            d["state"] = self.state
+            if self.velocity is not None:
+                d["v"] = [round(float(v), 3) for v in self.velocity]
+            if self.t_seen is not None and np.isfinite(self.t_seen):
+                d["t_seen"] = round(float(self.t_seen), 4)
+            if self.votes:
+                d["votes"] = {k: round(float(v), 2) for k, v in sorted(self.votes.items(), key=lambda kv: -kv[1])[:3]}
+        if self.raw is not None:
+            d["raw"] = [round(float(v), 3) for v in self.raw]
+        if self.score is not None:
+            d["score"] = round(self.score, 3)
+        if self.dead:
+            d["dead"] = True
+        return d
+
+
+@dataclass
+class FrameResult:
+    t: float
+    frame: str
+    robots: list[RobotOut]
+    sentry: dict | None
+    hero_range_m: float | None
+    timings_ms: dict[str, float]
+
+    def to_dict(self) -> dict:
+        return {"t": round(self.t, 4), "frame": self.frame, "robots": [r.to_dict() for r in self.robots], "sentry": self.sentry,
+                "hero_range_m": None if self.hero_range_m is None else round(self.hero_range_m, 3),
+                "latency_ms": {k: round(v, 3) for k, v in self.timings_ms.items()}}  # fmt: skip
+
+
+def _team_of(label: str | None) -> str | None:
+    return label.split("_", 1)[0] if label and label.startswith(("red_", "blue_")) else None
+
+
+def _number_of(label: str | None) -> int | None:
+    if not label:
+        return None
+    tail = label.split("_", 1)[-1]
+    return int(tail) if tail.isdigit() else None
+
+
+class Pipeline:
+    """Per-frame core: clouds in, detections in, located + tracked robots out."""
+
+    def __init__(self, bundle: Bundle, camera: str, lidar: str | None, cfg: RunConfig):
+        self.cfg = cfg
+        self.camera = bundle.camera(camera)
+        self.T_field_cam = bundle.T("field", camera)
+        self.field_model = bundle.field()
+        self.queue = None
+        T_cam_lidar = bundle.T(camera, lidar) if lidar is not None else None  # solved once
+        if lidar is not None:
+            flt = None
+            if cfg.surface_filter:
+                surf = self.field_model.surface_z if self.field_model is not None else None
+                structs = getattr(self.field_model, "structures", None) if self.field_model is not None else None
+                flt = SurfaceFilter(self.T_field_cam @ T_cam_lidar, surf, min_height=cfg.surface_min_height_m, structures=structs)
+            self.queue = CloudQueue(self.camera, T_cam_lidar, cfg.cloud_queue_points, cfg.cloud_queue_age_s, point_filter=flt)
+        self.localiser = Localiser(self.camera, self.T_field_cam, self.field_model, cfg.robot_radius_m, cfg.visible_depth_factor)
+        self.tracks = TrackManager(accel_sigma=cfg.accel_sigma, max_coast_s=cfg.max_coast_s)
+        self.clouds_in = 0
+        self.dead: dict[str, bool] = {}  # label -> its armour was grey when last detected
+        if cfg.localise not in LOCALISE_MODES:
+            raise ValueError(f"localise: expected one of {', '.join(LOCALISE_MODES)}, got {cfg.localise!r}")
+        self.lidar_first = None
+        if lidar is not None and cfg.localise != "box":
+            from radarcal.runtime.lidar_first import LidarFirst, LidarFirstConfig
+
+            sig = bundle.transforms.get(f"T_{camera}_{lidar}")
+            sig = sig.sigma if sig is not None else {}
+            lf_cfg = LidarFirstConfig(window_sweeps=cfg.window_sweeps, sweep_s=cfg.cloud_sweep_s, latency_s=cfg.cloud_latency_s, learn_background=cfg.learn_background,
+                                      sigma_rot_deg=max(float(sig.get("rot_deg", 0.25)), 0.1), sigma_trans_m=max(float(sig.get("trans_m", 0.03)), 0.01))  # fmt: skip
+            self.lidar_first = LidarFirst(self.T_field_cam @ T_cam_lidar, self.field_model, lf_cfg, camera=self.camera, T_field_cam=self.T_field_cam)
+            if cfg.localise == "lidar":
+                self.queue = None  # no box path
+
+    def add_cloud(self, t: float, points: np.ndarray) -> None:
+        """One cloud (LiDAR frame, points in firing order) with its time on the camera clock (arrival)."""
+        if not len(points):
+            return
+        if self.queue is not None:
+            self.queue.push(t, points)
+        if self.lidar_first is not None:
+            self.lidar_first.add_cloud(t, points)
+        if self.queue is not None or self.lidar_first is not None:
+            self.clouds_in += 1
+
+    @staticmethod
+    def _valid(d: Detection, min_score: float) -> bool:
+        b = np.asarray(d.xyxy, float)
+        return b.shape == (4,) and bool(np.all(np.isfinite(b))) and b[2] > b[0] and b[3] > b[1] and bool(np.isfinite(d.score)) and d.score >= min_score
+
+    def _box_depths(self, boxes: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """LiDAR depth (camera z) and its sigma for each box from the cloud queue (NaN: none); robots standing nearer
+        (box bottom lower in the image) and overlapping a box hide part of it: their pixels are not this robot's."""
+        depth = np.full(len(boxes), np.nan)
+        dsig = np.full(len(boxes), np.nan)
+        if self.queue is None:
+            return depth, dsig
+        self.queue.expire(t)
+        for i in range(len(boxes)):
+            b = boxes[i]
+            front = (boxes[:, 3] > b[3] + 2) & (boxes[:, 0] < b[2]) & (boxes[:, 2] > b[0]) & (boxes[:, 1] < b[3]) & (boxes[:, 3] > b[1])
+            bd = self.queue.depth_in_box(b, t, max_age_s=self.cfg.depth_max_age_s, exclude=boxes[front] if front.any() else None)
+            if bd is not None:
+                depth[i], dsig[i] = bd.depth, bd.sigma
+        return depth, dsig
+
+    def process(self, t: float, frame: str, detections: list[Detection], timings: dict[str, float] | None = None, team: str | None = None) -> FrameResult:
+        for d in detections:
+            if d.label:
+                self.dead[d.label] = bool(getattr(d, "dead", False))
+        res = (self._process_lidar_first if self.lidar_first is not None else self._process_box)(t, frame, detections, timings, team)
+        if any(self.dead.values()):
+            for r in res.robots:
+                r.dead = bool(r.label and self.dead.get(r.label, False))
+            team = team or self.cfg.team
+            res.sentry = self.sentry_guidance(res.robots, team)  # a dead robot is never the sentry's target
+        return res
+
+    def _process_lidar_first(self, t: float, frame: str, detections: list[Detection], timings: dict[str, float] | None, team: str | None) -> FrameResult:
+        timings = dict(timings or {})
+        tic = time.perf_counter()
+        dets = [d for d in detections if self._valid(d, self.cfg.min_score)]
+        boxes = np.array([d.xyxy for d in dets], float).reshape(-1, 4)
+        labels = [d.label for d in dets]
+        scores = np.array([d.score for d in dets], float)
+        fixes: dict[int, tuple] = {}
+
+        def locate_boxes(idx: list[int]):
+            b = boxes[idx]
+            depth, dsig = self._box_depths(b, t)
+            loc = self.localiser.locate(b, depth, dsig)
+            # a box much wider than high is the visible top of a robot hidden below: its bottom edge is not the
+            # robot's foot point, so no ground ray from it
+            flat = (b[:, 3] - b[:, 1]) < self.cfg.ground_min_aspect * (b[:, 2] - b[:, 0])
+            loc.source[flat & (loc.source == "ground")] = "none"
+            for n, j in enumerate(idx):
+                fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
+            return loc.p_field, loc.sigma, loc.source
+
+        live = self.lidar_first.frame(t, boxes, labels, scores, locate_boxes if self.cfg.localise == "auto" else None)
+        toc = time.perf_counter()
+        timings["depth"] = 0.0
+        timings["localise"] = (toc - tic) * 1e3
+        robots = []
+        zs = self.localiser.surface_z(np.array([tr.x[:2] for tr in live]).reshape(-1, 2)) if live else []
+        for tr, zsurf in zip(live, zs):
+            src = self.lidar_first.seen_source(tr, t)
+            j = tr.last_box
+            z = tr.z if tr.aerial else float(zsurf)
+            fx = fixes.get(j) if j is not None else None
+            robots.append(RobotOut(tr.label, np.array([tr.x[0], tr.x[1], z]), src, tr.sigma, fx[1] if fx else None, float(scores[j]) if j is not None else None,
+                                   fx[0] if fx is not None and src != "predicted" else None, tr.id, tr.state, tr.x[2:].copy(), tr.t_seen, dict(tr.votes)))  # fmt: skip
+        robots.sort(key=lambda r: (r.label is None, r.label or "", r.track_id or 0))
+        timings["track"] = (time.perf_counter() - toc) * 1e3
+        team = team or self.cfg.team
+        return FrameResult(t, frame, robots, self.sentry_guidance(robots, team), self.hero_range(robots, team), timings)
+
+    def _process_box(self, t: float, frame: str, detections: list[Detection], timings: dict[str, float] | None = None, team: str | None = None) -> FrameResult:
+        timings = dict(timings or {})
+        tic = time.perf_counter()
+        best: dict[str, Detection] = {}
+        for d in detections:
+            b = np.asarray(d.xyxy, float)
+            if b.shape != (4,) or not np.all(np.isfinite(b)) or b[2] <= b[0] or b[3] <= b[1] or not np.isfinite(d.score):
+                continue  # a malformed box is dropped, never fatal
+            if d.score >= self.cfg.min_score and (d.label not in best or d.score > best[d.label].score):
+                best[d.label] = d
+        dets = list(best.values())
+        boxes = np.array([d.xyxy for d in dets], float).reshape(-1, 4)
+        depth, dsig = self._box_depths(boxes, t)
+        toc = time.perf_counter()
+        timings["depth"] = (toc - tic) * 1e3
+        loc = self.localiser.locate(boxes, depth, dsig)
+        tic = time.perf_counter()
+        timings["localise"] = (tic - toc) * 1e3
+        meas = [(d.label, loc.p_field[i, :2], loc.sigma[i], str(loc.source[i])) for i, d in enumerate(dets) if loc.source[i] != "none"]
+        live = self.tracks.update(t, meas)
+        seen = {d.label: i for i, d in enumerate(dets)}
+        robots = []
+        live = sorted(live, key=lambda tr: tr.label)
+        zs = self.localiser.surface_z(np.array([tr.xy for tr in live]).reshape(-1, 2)) if live else []
+        for tr, z in zip(live, zs):
+            i = seen.get(tr.label)
+            measured = i is not None and loc.source[i] != "none" and tr.t_update == t
+            xy = tr.xy
+            robots.append(RobotOut(tr.label, np.array([xy[0], xy[1], float(z)]), tr.source if measured else "predicted", tr.sigma,
+                                   float(depth[i]) if measured and np.isfinite(depth[i]) else None,
+                                   dets[i].score if i is not None else None, loc.p_field[i] if measured else None))  # fmt: skip
+        toc = time.perf_counter()
+        timings["track"] = (toc - tic) * 1e3
+        team = team or self.cfg.team
+        return FrameResult(t, frame, robots, self.sentry_guidance(robots, team), self.hero_range(robots, team), timings)
+
+    # --- match functions ---------------------------------------------------------------------------------------------
+    def sentry_guidance(self, robots: list[RobotOut], team: str) -> dict | None:
+        """Nearest enemy to our sentry as a relative field vector (NUAA 2022: enemy - sentry, sent to the sentry)."""
+        sentry = next((r for r in robots if r.label == f"{team}_7"), None)
+        s_xy = sentry.p_field[:2] if sentry is not None else (np.asarray(self.cfg.sentry_xy, float) if self.cfg.sentry_xy else None)
+        if s_xy is None:
+            return None
+        enemies = [r for r in robots if _team_of(r.label) not in (None, team) and not r.dead]
+        if not enemies:
+            return {"target": None, "sentry": [round(float(v), 3) for v in s_xy], "from": "track" if sentry is not None else "config"}
+        d = np.array([r.p_field[:2] - s_xy for r in enemies])
+        k = int(np.argmin(np.linalg.norm(d, axis=1)))
+        return {"target": enemies[k].label, "dx": round(float(d[k, 0]), 3), "dy": round(float(d[k, 1]), 3), "distance": round(float(np.linalg.norm(d[k])), 3),
+                "sentry": [round(float(v), 3) for v in s_xy], "from": "track" if sentry is not None else "config"}  # fmt: skip
+
+    def hero_range(self, robots: list[RobotOut], team: str) -> float | None:
+        """Horizontal distance from our hero to the enemy outpost + the per-match offset from the bundle."""
+        if self.field_model is None:
+            return None
+        enemy = "blue" if team == "red" else "red"
+        outpost = self.field_model.landmarks.get(f"{enemy}_outpost")
+        hero = next((r for r in robots if r.label == f"{team}_1"), None)
+        if outpost is None or hero is None:
+            return None
+        return float(np.linalg.norm(hero.p_field[:2] - outpost[:2]) + self.cfg.hero_range_offset_m)
+
+    def referee_messages(self, res: FrameResult, team: str) -> list[tuple[int, bytes, int]]:
+        """(cmd_id, data, mailbox key) to send for a frame: minimap 0x0305, sentry guidance, hero range."""
+        enemy_team = "blue" if team == "red" else "red"
+        live = [r for r in res.robots if not r.dead]  # a dead robot (grey armour) is tracked but never sent
+        enemy = {n: tuple(r.p_field[:2]) for r in live if _team_of(r.label) == enemy_team and (n := _number_of(r.label))}
+        ally = {n: tuple(r.p_field[:2]) for r in live if _team_of(r.label) == team and (n := _number_of(r.label))}
+        out = []
+        for i, payload in enumerate(rp.map_payload(self.cfg.season, enemy, ally, enemy_team)):
+            out.append((rp.CMD_MAP, payload, i))
+        radar = rp.robot_id(team, 9)
+        if res.sentry is not None:
+            tgt = res.sentry.get("target")
+            content = rp.sentry_guidance_content(_number_of(tgt) or 0 if tgt else 0, res.sentry.get("dx", np.nan), res.sentry.get("dy", np.nan), res.sentry.get("distance", np.nan))
+            out.append((rp.CMD_INTERACTION, rp.interaction_payload(self.cfg.sentry_cmd_id, radar, rp.robot_id(team, 7), content), self.cfg.sentry_cmd_id))
+        if res.hero_range_m is not None:
+            content = rp.hero_range_content(res.hero_range_m)
+            out.append((rp.CMD_INTERACTION, rp.interaction_payload(self.cfg.hero_cmd_id, radar, rp.robot_id(team, 1), content), self.cfg.hero_cmd_id))
+        return out
+
+

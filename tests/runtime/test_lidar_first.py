@@ -1,0 +1,137 @@
+"""LiDAR-first building blocks against known geometry: static filter, learnt background, clusters, 3D tracks,
+identities (tests mirror radarcal/runtime/{background,clusters,tracks,identity,lidar_first}.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from radarcal.field import builtin_field
+from radarcal.geometry import invert_T, make_T
+from radarcal.runtime.background import StaticFilter, VoxelBackground, field_occupancy, transform_f32
+from radarcal.runtime.clusters import cluster_points
+from radarcal.runtime.identity import assign_labels, match_boxes, visible_parts
+from radarcal.runtime.lidar_first import point_times
+from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Tracker3D
+
+FIELD = builtin_field("rmuc2024")
+SENSOR = np.array([-0.6, 11.5, 2.4])
+
+
+def _box_points(c, size=(0.5, 0.5, 0.45), n=300, rng=None, z0=0.0):
+    """Points on the faces of an axis-aligned box standing on z0 that a sensor at SENSOR sees (near x face, top)."""
+    rng = rng or np.random.default_rng(0)
+    l, w, h = size
+    face = np.column_stack([np.full(n, c[0] - l / 2), rng.uniform(c[1] - w / 2, c[1] + w / 2, n), rng.uniform(z0, z0 + h, n)])
+    top = np.column_stack([rng.uniform(c[0] - l / 2, c[0] + l / 2, n // 3), rng.uniform(c[1] - w / 2, c[1] + w / 2, n // 3), np.full(n // 3, z0 + h)])
+    return np.vstack([face, top])
+
+
+def _filter(T_field_lidar, learn=True):
+    occ = field_occupancy(FIELD, (-1, -1, 29, 16))
+    bg = VoxelBackground((0, 0, -0.5, 28, 15, 3.5)) if learn else None
+    return StaticFilter(T_field_lidar, occ, bg, (0.05, 0.05, 27.95, 14.95))
+
+
+def test_static_filter_keeps_robots_drops_field_structures_and_outside():
+    rng = np.random.default_rng(1)
+    T = make_T(np.eye(3), SENSOR)  # LiDAR axes = field axes, 2.4 m up at the station
+    ground = np.column_stack([rng.uniform(1, 27, 5000), rng.uniform(1, 14, 5000), rng.normal(0, 0.02, 5000)])
+    highland = np.column_stack([rng.uniform(12.2, 15.8, 800), rng.uniform(6.2, 8.8, 800), 0.6 + rng.normal(0, 0.02, 800)])
+    outpost = np.column_stack([rng.uniform(10.8, 11.2, 300), rng.uniform(12.3, 12.7, 300), rng.uniform(0, 1.3, 300)])
+    person = np.column_stack([rng.uniform(5, 5.4, 300), np.full(300, -0.6), rng.uniform(0, 1.7, 300)])  # outside the line
+    robot = _box_points((8.0, 5.0), rng=rng)
+    on_high = _box_points((14.0, 7.5), rng=rng, z0=0.6)
+    pts = np.vstack([ground, highland, outpost, person, robot, on_high])
+    p, idx, bg = _filter(T, learn=False)(transform_f32(invert_T(T), pts))
+    kept = np.zeros(len(pts), bool)
+    kept[idx] = True
+    n0 = len(ground) + len(highland) + len(outpost) + len(person)
+    assert kept[:n0].mean() < 0.002  # field, structure, people outside: gone
+    assert kept[n0 : n0 + len(robot)].mean() > 0.6 and kept[n0 + len(robot) :].mean() > 0.3  # robots (their top parts) stay
+    np.testing.assert_allclose(p, pts[idx], atol=1e-4)
+
+
+def test_ground_fit_removes_a_calibration_tilt():
+    """A 1 deg pitch error lifts the far ground by ~45 cm: with the fitted plane it is still ground."""
+    rng = np.random.default_rng(2)
+    c, s = np.cos(np.deg2rad(1.0)), np.sin(np.deg2rad(1.0))
+    T_true = make_T(np.eye(3), SENSOR)
+    T_bad = make_T(np.array([[c, 0, -s], [0, 1, 0], [s, 0, c]]), SENSOR)  # what the bundle believes
+    ground = np.column_stack([rng.uniform(1, 27, 20000), rng.uniform(1, 14, 20000), rng.normal(0, 0.02, 20000)])
+    pl = transform_f32(invert_T(T_true), ground)
+    flt = _filter(T_bad, learn=False)
+    for _ in range(5):
+        p, idx, _ = flt(pl)
+    assert len(idx) < 0.002 * len(ground)
+    flt_nofit = _filter(T_bad, learn=False)
+    flt_nofit.ground_fit = False
+    assert len(flt_nofit(pl)[1]) > 0.05 * len(ground)
+
+
+def test_learnt_background_absorbs_static_clutter_not_protected_robots():
+    bg = VoxelBackground((0, 0, -0.5, 28, 15, 3.5))
+    rng = np.random.default_rng(3)
+    clutter = _box_points((27.2, 0.6), (0.5, 0.4, 0.8), 40, rng)
+    robot = _box_points((10, 5), n=40, rng=rng)
+    flt = _filter(make_T(np.eye(3), SENSOR))
+    for k in range(12):  # 1.2 s, sparse: a few points of each per cloud
+        t = 0.1 * k
+        sel_c = clutter[rng.choice(len(clutter), 5)]
+        sel_r = robot[rng.choice(len(robot), 5)]
+        flt.learn(np.vstack([sel_c, sel_r]), t, protect_xy=np.array([[10.0, 5.0]]))
+    bg = flt.background
+    assert bg.is_background(bg.keys(clutter), 1.2).mean() > 0.8
+    assert not bg.is_background(bg.keys(robot), 1.2).any()
+    assert not bg.is_background(bg.keys(clutter), 1.2 + 60).any()  # refreshed: gone after a minute unseen
+
+
+def test_clusters_find_robots_split_touching_ones_and_the_aerial():
+    rng = np.random.default_rng(4)
+    a = _box_points((8.0, 5.0), rng=rng)
+    b1 = _box_points((12.0, 8.0), rng=rng)
+    b2 = _box_points((12.0, 8.55), rng=rng)  # touching b1 (5 cm gap)
+    air = _box_points((15.0, 4.0), (0.8, 0.8, 0.3), rng=rng, z0=1.9)
+    tiny = rng.normal([20, 10, 0.3], 0.02, (3, 3))  # a few stray returns
+    wall = np.column_stack([rng.uniform(5, 8, 400), np.full(400, 12.0), rng.uniform(0, 0.5, 400)])  # 3 m long: not a robot
+    p = np.vstack([a, b1, b2, air, tiny, wall])
+    cl = cluster_points(p, np.zeros(len(p)), np.zeros(len(p)), SENSOR[:2])
+    truth = np.array([[8.0, 5.0], [12.0, 8.0], [12.0, 8.55], [15.0, 4.0]])
+    d = np.linalg.norm(cl.centre[:, None, :2] - truth[None], axis=2)
+    assert len(cl) == 4 and np.all(d.min(0) < 0.2), (cl.centre, d.min(0))
+    assert cl.aerial[np.argmin(d[:, 3])] and cl.aerial.sum() == 1
+
+
+def test_tracker_confirms_loses_and_never_makes_a_robot_from_one_box():
+    tk = Tracker3D()
+    for k in range(3):
+        t = 0.1 * k
+        tk.update_clusters(np.array([[5 + 1.5 * t, 5, 0]]), np.array([0.05]), np.array([t]), np.array([False]), np.array([[0.5, 0.5, 0.45]]),
+                           [(np.zeros(3), np.ones(3))], t)  # fmt: skip
+        tk.step(t)
+    (tr,) = tk.tracks
+    assert tr.state == CONFIRMED and abs(tr.x[2] - 1.5) < 0.3
+    tk.update_box("blue_4", np.array([20.0, 3.0]), 0.2, 0.2, 0.0, "depth", None)  # one stray box
+    tk.step(0.23)
+    assert [o.state for o in tk.tracks if o is not tr] == [TENTATIVE]
+    tk.step(0.6)
+    assert tk.tracks == [tr] and tr.state == LOST  # unseen 0.4 s: lost (still predicted), the stray box is gone
+    tk.step(2.5)
+    assert tk.tracks == []
+
+
+def test_identity_matches_the_visible_part_and_labels_are_unique():
+    # a near robot hides the left half of a far one: the far robot's box is its right half
+    full = np.array([[100, 80, 200, 200], [150, 90, 250, 180.0]])
+    depth = np.array([10.0, 15.0])
+    vis, frac = visible_parts(full, depth)
+    assert frac[0] == 1.0 and 0.4 < frac[1] < 0.6 and vis[1, 0] >= 198
+    boxes = np.array([[203, 92, 249, 178], [102, 82, 199, 198.0]])
+    pairs = match_boxes(vis, boxes)
+    assert sorted((k, j) for k, j, _ in pairs) == [(0, 1), (1, 0)]
+    labels = assign_labels([{"blue_3": 5.0, "blue_4": 0.6}, {"blue_3": 2.0, "blue_4": 1.8}, {"red_1": 0.3}, {"blue_3": 1.0, "blue_5": 3.0}])
+    assert labels == ["blue_3", None, None, "blue_5"]  # one track per label; ambiguous or weak votes give no label
+
+
+def test_point_times_model_a_late_sweep():
+    t = point_times(1000, 1.112, 0.1, 0.012)
+    assert t[0] == np.float64(1.0) + 0.05e-3 and abs(t[-1] - 1.09995) < 1e-9 and np.all(np.diff(t) > 0)

@@ -1,0 +1,63 @@
+"""LiDAR-first vs box path on `radarcal synth match` replays (visible-part boxes, misses, false positives, swaps,
+late clouds, calibration error). Slow: each replay takes ~30-60 s to generate (`make test-slow`). The thresholds
+are the figures measured in docs/runtime.md with a margin, not the issue's goals (not all reached, see there)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+
+import numpy as np
+import pytest
+
+from radarcal.cli.main import main
+
+pytestmark = pytest.mark.slow
+
+
+def _synth(tmp_path, name, *extra):
+    out = tmp_path / name
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["synth", "match", str(out), "--frames", "300", *extra, "--json"]) == 0
+    return out
+
+
+def _run(rep, capsys, *extra):
+    capsys.readouterr()
+    out = rep / f"out{'_'.join(extra)}.jsonl"
+    assert main(["run", "--replay", str(rep), "--out", str(out), "-q", "--json", *extra]) == 0
+    return json.loads(capsys.readouterr().out)["accuracy"], [json.loads(x) for x in out.read_text().splitlines()]
+
+
+def test_occlusion_replay_hidden_robot_keeps_track_and_label(tmp_path, capsys):
+    rep = _synth(tmp_path, "occ", "--seed", "4", "--scenario", "occlusion")
+    acc, lines = _run(rep, capsys)
+    truth = {json.loads(x)["frame"]: json.loads(x) for x in (rep / "truth.jsonl").read_text().splitlines()}
+    dets = {json.loads(x)["frame"]: json.loads(x) for x in (rep / "detections.jsonl").read_text().splitlines()}
+    n = kept = 0
+    for o in lines:
+        boxed = {b["label"] for b in dets[o["frame"]]["boxes"]}
+        out = {r["label"]: r for r in o["robots"] if r["label"]}
+        for r in truth[o["frame"]]["robots"]:
+            if o["t"] >= 1.0 and r["label"] not in boxed and r["lidar_hits"] >= 3:  # no box, the LiDAR sees it
+                n += 1
+                e = out.get(r["label"])
+                kept += e is not None and np.hypot(e["x"] - r["p_field"][0], e["y"] - r["p_field"][1]) < 0.6
+    print(f"occlusion: {kept}/{n} hidden-from-camera robot-frames kept with their label; {acc}")
+    assert n >= 20 and kept >= 0.9 * n
+    assert acc["right_within_0.6m_pct"] > 85 and acc["false_per_frame"] < 0.2
+
+
+def test_realistic_replay_auto_box_and_lidar_only(tmp_path, capsys):
+    rep = _synth(tmp_path, "r7", "--seed", "7")
+    auto, _ = _run(rep, capsys)
+    box, _ = _run(rep, capsys, "--localise", "box")
+    lidar, _ = _run(rep, capsys, "--no-camera")
+    print(f"auto {auto}\nbox {box}\nlidar only {lidar}")
+    # seed 7, never tuned on, is the hardest measured: auto 76.8 %, box 84.1 % right (docs/runtime.md)
+    assert auto["right_within_0.6m_pct"] > 70 and auto["median_m"] < 0.2 and auto["wrong_label_pct"] < 6
+    assert auto["false_per_frame"] < 0.35 and auto["longest_ghost_s"] < 1.0
+    assert box["right_within_0.6m_pct"] > 75
+    assert lidar["longest_ghost_s"] < 1.0 and lidar["false_per_frame"] < 0.4  # people at the boundary never become robots
+    assert lidar["lidar_within_0.3m_pct"] > 40  # measured 46-70 % (goal 95 %: not met, docs/runtime.md)
