@@ -431,7 +431,6 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
 def edge_verdict(checks: dict, o: RefineOptions) -> tuple[bool, str]:
     """The convergence verdict from the refinement's own checks (``RefineResult.checks``): pure, so that it can be
     calibrated on stored sweeps. Returns (converged, message)."""
-    sigma_boot = np.asarray(checks["sigma_bootstrap"], float)
     centre_move, converged_stage, stable = checks["centre_move_m"], checks["converged_stage"], checks["stable"]
     valley_settled, match_fraction, n_match, rms = checks["valley_settled"], checks["match_fraction"], checks["n_matches"], checks["rms_px"]
     score_before, score_after, moved_deg, moved_m = checks["score_before"], checks["score_after"], checks["moved_deg"], checks["moved_m"]

@@ -224,7 +224,6 @@ def _parking(rng, w: _World, g: float) -> None:
         yaw = rng.uniform(-0.08, 0.08)
         body = w.cuboid("car", (x, y, g + 0.55), (4.3, 1.8, 0.8), yaw, albedo=rng.uniform(0.1, 0.9), nir=rng.uniform(0.6, 1.2), colour=_colour(rng))
         w.cuboid("cabin", (x + 0.2, y, g + 1.2), (2.2, 1.6, 0.5), yaw, albedo=rng.uniform(0.05, 0.3), nir=0.5, colour=_colour(rng))
-        v = w.objects[body]["v"]
         w.patch(body, np.array([x - 2.15 * np.cos(yaw), y - 2.15 * np.sin(yaw), g + 0.55]), (np.sin(yaw), -np.cos(yaw), 0), (0, 0, 1), 0.26, 0.06, 0.95, 1.6)  # plate
     for x in (rows[0] + 3.4, rows[1] + 3.4):
         for y in np.arange(-10, 10.01, rng.uniform(5, 8)):  # columns with painted bands
