@@ -454,7 +454,7 @@ def test_field_accessor_parses_once_and_runtime_defaults_have_one_source(tmp_pat
     assert b.field() is None
     b.field_model = builtin_field("rmuc2024").to_dict()
     fm = b.field()
-    assert fm is b.field() and fm.name == "rmuc2024" and "blue_outpost" in fm.landmarks  # parsed once
+    assert fm is b.field() and fm.name == "rmuc_schematic" and "blue_outpost" in fm.landmarks  # parsed once
     b.field_model = {**b.field_model, "name": "edited"}
     assert b.field().name == "edited"  # a new dict is parsed again
     b.field_model = {"name": "broken"}

@@ -181,7 +181,8 @@ def test_item8_hero_offset_from_a_moving_hero_needs_force(sample, tmp_path, caps
     assert "spreads" in _err_line(capsys) and _state(b) == before
     assert main(["hero-offset", "-b", str(b), "--replay", str(sample), "--team", "blue", "--actual", "10", "--max-spread", "1.0", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)
-    assert 0.4 < s["measured_spread_m"] < 0.7 and "warnings" not in s
+    # measured by the default (LiDAR-first) localisation, which adds its own spread to the hero's true 0.52 m
+    assert 0.4 < s["measured_spread_m"] < 0.9 and "warnings" not in s
 
 
 # --- item 9: generated replays go stale -----------------------------------------------------------------------------------------
