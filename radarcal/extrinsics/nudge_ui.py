@@ -16,7 +16,6 @@ import threading
 import numpy as np
 
 from radarcal import geometry
-from radarcal.errors import InputError
 from radarcal.pnp.ui import STEPS
 
 __all__ = ["NUDGE_PARAMS", "apply_nudge", "nudge_in_browser"]
@@ -88,16 +87,5 @@ def nudge_in_browser(image_bgr: np.ndarray, camera, points_lidar: np.ndarray, T_
     srv.get["/overlay.jpg"] = lambda q: ("image/jpeg", state["jpeg"])
     srv.actions["update"] = update
     srv.actions["take"] = take
-    srv.start()
-    srv.announce()
-    if ready is not None:
-        ready(srv)
-    try:
-        while not done.wait(0.2):
-            pass
-        done.wait(0.3)
-    except KeyboardInterrupt:
-        raise InputError("--ui", "closed without taking a pose: nothing written") from None
-    finally:
-        srv.close()
+    srv.serve_until(done, ready, "closed without taking a pose: nothing written")
     return result["T"]

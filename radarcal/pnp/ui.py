@@ -211,16 +211,5 @@ def pick_in_browser(image_bgr: np.ndarray, camera, field_model, order: list[str]
     srv.get["/api/setup"] = lambda q: ("application/json", json.dumps(setup).encode())
     srv.actions["update"] = update
     srv.actions["save"] = save
-    srv.start()
-    srv.announce()
-    if ready is not None:
-        ready(srv)
-    try:
-        while not done.wait(0.2):
-            pass
-        done.wait(0.3)  # let the save response reach the page
-    except KeyboardInterrupt:
-        raise InputError("--ui", "closed without saving: nothing written") from None
-    finally:
-        srv.close()
+    srv.serve_until(done, ready, "closed without saving: nothing written")
     return result["names"], result["uv"], result["T"]

@@ -175,6 +175,25 @@ class WebServer:
         self._log(f"{self.name}: {self.url}#token={self.token}  (bound to {self.host}{'' if self.loopback else ' - NOT loopback: every view needs the token'};"
                   f" actions need the token {self.token})")  # fmt: skip
 
+    def serve_until(self, done: threading.Event, ready=None, closed_message: str = "closed: nothing written") -> None:
+        """Start, print the address and token, call ``ready(self)`` (tests), block until ``done`` is set by an action
+        (then give its response a moment to reach the page), and close. Ctrl-C -> InputError(``--ui``,
+        ``closed_message``): a page closed without its action has written nothing."""
+        from radarcal.errors import InputError
+
+        self.start()
+        self.announce()
+        if ready is not None:
+            ready(self)
+        try:
+            while not done.wait(0.2):
+                pass
+            done.wait(0.3)
+        except KeyboardInterrupt:
+            raise InputError("--ui", closed_message) from None
+        finally:
+            self.close()
+
     # --- checks -----------------------------------------------------------------------------------------------------
     def refuse(self, addr: str, path: str, status: int, why: str) -> None:
         self.refusals.append({"t": time.time(), "client": addr, "path": path, "status": status, "why": why})
