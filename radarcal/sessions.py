@@ -124,8 +124,10 @@ def resolve_session_path(name: str, session_dir: str | os.PathLike | None, *fall
     if p.is_absolute():
         return p if p.exists() else None
     for d in (session_dir, *fallback_dirs):
-        if d is not None and (Path(d) / p).exists():
-            return Path(d) / p
+        if d is not None:
+            cand = Path(os.path.normpath(Path(d) / p))  # lexically: the folder before a '..' may be gone
+            if cand.exists():
+                return cand
     return p if p.exists() else None
 
 

@@ -153,7 +153,9 @@ def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, t
     content.sections.append(_overview(bundle, skip_cameras=with_intrinsics))
     for key, (arrays, meta, path) in sorted(sessions.items(), key=lambda kv: (_ORDER.get(kv[0].partition("/")[0], 9), kv[0])):
         kind = key.partition("/")[0]
-        base = [path.parent, home]
+        # files named in the session: relative to its folder; when --session found it elsewhere, relative to the
+        # folder the bundle puts it in (the data stayed with the bundle); then the bundle's folder (older files)
+        base = [path.parent, *([home / Path(bundle.sessions[key]).parent] if key in bundle.sessions and home is not None else []), home]
         try:
             if kind in _SECTIONS:
                 _SECTIONS[kind](bundle, key, arrays, meta, content, base)
