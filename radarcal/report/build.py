@@ -27,9 +27,9 @@ from radarcal.report.html import Section, Table
 from radarcal.report.intrinsics_section import IntrinsicsData, intrinsics_data, intrinsics_section, stereo_section
 from radarcal.report.lidar_camera_section import LidarCameraData, lidar_camera_data, lidar_camera_section
 from radarcal.report.radar_section import radar_lidar_section
-from radarcal.report.sections_common import camera_param_table, read_cloud_file, read_image_file
+from radarcal.report.sections_common import camera_param_table, read_cloud_file, read_image_file, resolve_file
 
-__all__ = ["ReportContent", "build_report", "discover_sessions", "session_files", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data"]
+__all__ = ["ReportContent", "build_report", "discover_sessions", "session_files", "session_base", "resolve_file", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data"]
 
 
 @dataclass
@@ -66,6 +66,13 @@ def session_files(bundle: Bundle, session_dir: str | os.PathLike | None = None) 
             if key not in out:
                 out[key] = (*read_session_file(p), p)
     return out
+
+
+def session_base(bundle: Bundle, key: str) -> list[Path]:
+    """Where files named in the bundle's session ``key`` are looked for, in order: the session file's folder (how the
+    commands store them), then the bundle's folder (files written before); for :func:`resolve_file`."""
+    home = bundle.path.parent if bundle.path else Path(".")
+    return [home / Path(bundle.sessions[key]).parent, home] if key in bundle.sessions else [home]
 
 
 def _overview(bundle: Bundle, skip_cameras: set[str] = frozenset()) -> Section:
