@@ -80,10 +80,12 @@ def test_cwd_relative_names_are_stored_relative_to_the_session(tmp_path, monkeyp
     monkeypatch.chdir(tmp_path / "p")
     b = Bundle(path=tmp_path / "p" / "out" / "calib.yaml")
     (tmp_path / "p" / "out").mkdir()
-    FieldPnPSession(image="data/f.png", picks_file="not-a-file.csv").save(b, "field_pnp/cam0")
+    FieldPnPSession(image="data/f.png", picks_file="data/f.png").save(b, "field_pnp/cam0")
     _, meta = load_session(b, "field_pnp/cam0")
     assert meta["image"] == "../../data/f.png"  # from out/calib.sessions/
-    assert meta["picks_file"] == "not-a-file.csv"  # not a file: kept as given
+    assert meta["picks_file"] == "data/f.png"  # not a PATH_FIELD: kept as given
+    LidarCameraSession(pairs=[["data/f.png", "gone.pcd"]]).save(b, "lidar_camera/cam0_lidar0")
+    assert load_session(b, "lidar_camera/cam0_lidar0")[1]["pairs"] == [["../../data/f.png", "gone.pcd"]]  # a missing file: as given
 
 
 def test_moved_project_renders_the_same_figures(tmp_path, monkeypatch):
