@@ -149,7 +149,7 @@ def bundle_cross_checks(bundle, options: CrossCheckOptions | None = None) -> lis
             pa.note = "no field model in the bundle"
         elif missing:
             derived = [c for c in missing if any(is_derived(e) for n, e in bundle.transforms.items() if n in (f"T_{c}_field", f"T_field_{c}"))]
-            pa.note = (f"{', '.join(missing)} has no field pose of its own" + (" (derived through the stereo pair: agrees by construction)" if derived else "")
+            pa.note = (f"{', '.join(missing)} has no field pose of its own" + (", only one derived through the stereo pair, which agrees by construction" if derived else "")
                        + f"; run `radarcal field-pnp --camera {missing[0]}` to compare")
         elif link is None:
             pa.note = f"no link between {a} and {b} besides the field (no stereo pair, no LiDAR extrinsic of both): nothing to compare"

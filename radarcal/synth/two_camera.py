@@ -174,7 +174,7 @@ def write_two_camera_scene(scene: TwoCameraScene, out_dir: str | Path, click_sig
     for n in scene.cameras:
         names, uv = noisy_picks(scene, n, rng, click_sigma_px)
         p = out / f"picks_{n}.csv"
-        p.write_text("name,u,v\n" + "".join(f"{m},{u!r},{v!r}\n" for m, (u, v) in zip(names, uv)))
+        p.write_text("name,u,v\n" + "".join(f"{m},{float(u)!r},{float(v)!r}\n" for m, (u, v) in zip(names, uv)))
         files[f"picks_{n}"] = p
         if scene.T_cam_lidar is not None:
             P, U = lidar_correspondences(scene, n, rng, sigma_px=click_sigma_px)
