@@ -11,8 +11,10 @@ the loop's mismatch does to localisation, on points of the field surface both ca
 * **px**: where B's field pose projects ``p`` versus where the link puts the point A sees (and the same in A's image).
 
 :func:`bundle_cross_checks` finds the pairs in a bundle and says why a pair cannot be checked (no field pose of its
-own, no link besides the field). A pair whose median disagreement exceeds ``flag_cm`` or ``flag_px`` is flagged:
-``bundle validate``, the report and ``run`` list it (:func:`cross_check_flags`).
+own, no link besides the field). The disagreement the calibrations' own σ explain is predicted from the field poses'
+covariances (field-pnp's session) and the link entries' σ; a pair whose median disagreement exceeds ``k_sigma`` times
+that (and a floor of ``flag_cm`` / ``flag_px``) is flagged: ``bundle validate``, the report and ``run`` list it
+(:func:`cross_check_flags`).
 """
 
 from __future__ import annotations
@@ -33,8 +35,9 @@ class CrossCheckOptions:
     step_m: float = 0.5  # grid of surface points over the field
     max_range_m: float = 45.0  # points farther than this from a camera are not used
     target_height_m: float = 0.3  # above the surface (armour height): what the runtime localises
-    flag_cm: float = 12.0  # median horizontal disagreement above this -> flagged
-    flag_px: float = 8.0  # median pixel disagreement in either camera above this -> flagged
+    k_sigma: float = 3.0  # flagged when the median disagreement exceeds k x the one the calibrations' own σ predict ...
+    flag_cm: float = 5.0  # ... and this floor (cm, horizontal) ...
+    flag_px: float = 3.0  # ... or, in either image, k x the predicted pixel disagreement and this floor (px)
     min_points: int = 20  # fewer shared points than this: too little overlap to judge
 
 
@@ -58,6 +61,8 @@ class PairAgreement:
     px_a: dict = field(default_factory=dict)  # in a's image (px)
     px_b: dict = field(default_factory=dict)  # in b's image (px)
     landmarks: dict = field(default_factory=dict)  # name -> {"cm", "px_a", "px_b"} for landmarks both see
+    expected_cm: float = float("nan")  # median 1σ disagreement predicted from the poses' and the link's σ
+    expected_px: tuple = (float("nan"), float("nan"))  # the same in a's and b's image
     flagged: bool = False
     note: str = ""  # why the pair was not compared, or why it is flagged
 
@@ -88,10 +93,28 @@ def _one_way(cam_b: Camera, T_a_field, T_b_field, T_b_a, P):
     return np.linalg.norm(q[:, :2] - P[:, :2], axis=1), px
 
 
+def _predicted_cm(cam_a, cam_b, T_a_field, T_b_field, cov_a, cov_b, link_sigma, P) -> np.ndarray:
+    """(N,) predicted 1σ horizontal disagreement (cm) at P: both field poses' covariances (6x6 over [rotvec, t], the
+    LiDAR-depth localisation error they cause) and each link entry's (rotation rad, translation m) σ at the distance."""
+    from radarcal.pnp.error_map import localisation_sigma
+
+    var = np.zeros(len(P))
+    for cam, T, cov in ((cam_a, T_a_field, cov_a), (cam_b, T_b_field, cov_b)):
+        if cov is not None:
+            var += np.nan_to_num(localisation_sigma(cam, T, cov, P, pixel_sigma=0.0, range_sigma=0.0, mode="lidar")) ** 2
+    d = np.linalg.norm(geometry.transform_points(T_a_field, P), axis=1)
+    for rot, trans in link_sigma:
+        var += (d * rot) ** 2 + trans**2
+    return 100 * np.sqrt(var)
+
+
 def pair_agreement(cam_a: Camera, cam_b: Camera, T_a_field: np.ndarray, T_b_field: np.ndarray, T_b_a: np.ndarray, field_model,
-                   options: CrossCheckOptions | None = None, names: tuple[str, str] = ("a", "b"), link: str = "") -> PairAgreement:
+                   options: CrossCheckOptions | None = None, names: tuple[str, str] = ("a", "b"), link: str = "",
+                   cov_a: np.ndarray | None = None, cov_b: np.ndarray | None = None, link_sigma: tuple = ()) -> PairAgreement:
     """Disagreement on the field points both cameras see (module docstring). Frames: ``T_x_field`` maps field points
-    (m) into camera x; ``T_b_a`` maps camera a into camera b. Pure numpy."""
+    (m) into camera x; ``T_b_a`` maps camera a into camera b. ``cov_a`` / ``cov_b``: 6x6 covariances of the field
+    poses ([rotvec, t] of ``T_x_field``), ``link_sigma``: (rotation σ rad, translation σ m) per entry of the link; from
+    them the disagreement the calibrations' own noise explains (the flag compares against it). Pure numpy."""
     o = options or CrossCheckOptions()
     L, W = field_model.size
     X, Y = np.meshgrid(np.arange(o.step_m / 2, L, o.step_m), np.arange(o.step_m / 2, W, o.step_m))
@@ -119,16 +142,54 @@ def pair_agreement(cam_a: Camera, cam_b: Camera, T_a_field: np.ndarray, T_b_fiel
     if len(P) < o.min_points:
         out.note = f"only {len(P)} shared field points: too little overlap to judge"
         return out
+    pred = _predicted_cm(cam_a, cam_b, T_a_field, T_b_field, cov_a, cov_b, link_sigma, P)
+    out.expected_cm = float(np.median(pred))
+    out.expected_px = tuple(float(np.median(pred / 100 / cam.project_from(T, P)[2] * cam.fx)) for cam, T in ((cam_a, T_a_field), (cam_b, T_b_field)))
     why = []
-    if out.cm["median"] > o.flag_cm:
-        why.append(f"median {out.cm['median']:.1f} cm > {o.flag_cm:g} cm")
-    worst = max(out.px_a["median"], out.px_b["median"])
-    if worst > o.flag_px:
-        why.append(f"median {worst:.1f} px > {o.flag_px:g} px")
+    lim_cm = max(o.flag_cm, o.k_sigma * out.expected_cm)
+    if out.cm["median"] > lim_cm:
+        why.append(f"median {out.cm['median']:.1f} cm > {lim_cm:.1f} cm")
+    for cam, st, e in ((names[0], out.px_a, out.expected_px[0]), (names[1], out.px_b, out.expected_px[1])):
+        lim_px = max(o.flag_px, o.k_sigma * e)
+        if st["median"] > lim_px:
+            why.append(f"median {st['median']:.1f} px > {lim_px:.1f} px in {cam}")
     if why:
         out.flagged = True
         out.note = "the cameras disagree: " + ", ".join(why) + f" (one of T_{names[0]}_field, T_{names[1]}_field, {link} is wrong)"
     return out
+
+
+def _entry_sigma(entry) -> tuple[float, float]:
+    """(rotation σ rad, translation σ m) of a stored transform from whichever σ its command wrote (0, 0: none)."""
+    s = entry.sigma or {}
+    for rk, tk in (("edge_bootstrap_rot_deg", "edge_bootstrap_trans_m"), ("edge_rot_deg", "edge_trans_m"), ("pnp_rot_deg", "pnp_trans_m"), ("rot_deg", "trans_m")):
+        if rk in s and tk in s:
+            r, t = np.radians(np.asarray(s[rk], float)), np.asarray(s[tk], float)
+            if np.all(np.isfinite(r)) and np.all(np.isfinite(t)):
+                return float(np.linalg.norm(r)), float(np.linalg.norm(t))
+    if all(k in s for k in ("rx", "ry", "rz", "tx", "ty", "tz")):  # the stereo pair (radians, metres)
+        return float(np.linalg.norm([s["rx"], s["ry"], s["rz"]])), float(np.linalg.norm([s["tx"], s["ty"], s["tz"]]))
+    return 0.0, 0.0
+
+
+def _field_pose_cov(bundle, camera: str, T_cam_field: np.ndarray, entry) -> np.ndarray | None:
+    """6x6 covariance of ``T_<camera>_field`` ([rotvec, t]): field-pnp's session when it holds this very pose, else a
+    diagonal from the entry's σ (rot_deg, t_m), else None."""
+    from radarcal.errors import InputError
+
+    if f"field_pnp/{camera}" in bundle.sessions and bundle.path is not None:
+        try:
+            from radarcal.bundle import load_session
+
+            arrays, _ = load_session(bundle, f"field_pnp/{camera}")
+            if "cov_pose" in arrays and np.allclose(arrays["T_cam_field"], T_cam_field, atol=1e-9):
+                return np.asarray(arrays["cov_pose"], float)
+        except InputError:
+            pass  # a missing / unreadable session: fall back to the entry's σ
+    s = entry.sigma or {}
+    if "rot_deg" in s and "t_m" in s:
+        return np.diag(np.concatenate([np.radians(np.asarray(s["rot_deg"], float)), np.asarray(s["t_m"], float)]) ** 2)
+    return None
 
 
 def bundle_cross_checks(bundle, options: CrossCheckOptions | None = None) -> list[PairAgreement]:
@@ -155,7 +216,9 @@ def bundle_cross_checks(bundle, options: CrossCheckOptions | None = None) -> lis
             pa.note = f"no link between {a} and {b} besides the field (no stereo pair, no LiDAR extrinsic of both): nothing to compare"
         else:
             T = {c: own[c].T if own[c].target == c else geometry.invert_T(own[c].T) for c in (a, b)}
-            pa = pair_agreement(bundle.camera(a), bundle.camera(b), T[a], T[b], link[0], fm, options, (a, b), " · ".join(link[1]))
+            cov = {c: _field_pose_cov(bundle, c, T[c], own[c]) for c in (a, b)}
+            pa = pair_agreement(bundle.camera(a), bundle.camera(b), T[a], T[b], link[0], fm, options, (a, b), " · ".join(link[1]),
+                                cov[a], cov[b], tuple(_entry_sigma(bundle.transforms[n]) for n in link[1]))
         out.append(pa)
     return out
 
@@ -165,7 +228,8 @@ def format_agreement(p: PairAgreement) -> str:
     if not p.compared or not p.cm:
         return f"{p.camera_a} vs {p.camera_b}: not compared ({p.note})"
     s = (f"{p.camera_a} vs {p.camera_b} on {p.n_points} shared field points (link {p.link}): horizontal disagreement median {p.cm['median']:.1f} cm, "
-         f"p95 {p.cm['p95']:.1f} cm, max {p.cm['max']:.1f} cm; median {p.px_a['median']:.2f} px in {p.camera_a}, {p.px_b['median']:.2f} px in {p.camera_b}")
+         f"p95 {p.cm['p95']:.1f} cm, max {p.cm['max']:.1f} cm; median {p.px_a['median']:.2f} px in {p.camera_a}, {p.px_b['median']:.2f} px in {p.camera_b}; "
+         f"the calibrations' σ explain {p.expected_cm:.1f} cm")
     return s + (f"  FLAGGED: {p.note}" if p.flagged else f"  ({p.note})" if p.note else "")
 
 
