@@ -23,7 +23,7 @@ from radarcal.report.radar import (
     rcs_range_figure,
     reflector_residuals_figure,
 )
-from radarcal.report.teams import team_of, track_colours
+from radarcal.teams import team_of, track_colours
 from radarcal.report.intrinsics import (
     coverage_figure,
     coverage_grid,

@@ -12,7 +12,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from radarcal.report._common import auto_arrow_scale, new_figure, show_image
-from radarcal.report.teams import track_colours
+from radarcal.teams import track_colours
 
 __all__ = [
     "draw_field",
@@ -133,7 +133,7 @@ def localisation_error_figure(x_grid: np.ndarray, y_grid: np.ndarray, sigma_m: n
 
 def minimap_tracks_figure(size: tuple[float, float], tracks: Mapping[str, np.ndarray], truth: Mapping[str, np.ndarray] | None = None, outline: Sequence[np.ndarray] | None = None, landmarks: Mapping[str, Sequence[float]] | None = None, title: str = "Minimap: tracks"):
     """Each robot's track (``tracks[label]`` = (N, 2+) field x, y[, …]) as a line with its last position marked;
-    ``truth`` tracks (same labels) dashed. Colours by team (:mod:`radarcal.report.teams`)."""
+    ``truth`` tracks (same labels) dashed. Colours by team (:mod:`radarcal.teams`)."""
     fig, ax = new_figure(8.0, 8.0 * size[1] / size[0] + 0.8)
     draw_field(ax, size, outline, landmarks, label_landmarks=False)
     colours = track_colours(tracks)

@@ -248,7 +248,7 @@ def test_localisation_error_map_and_tracks():
 def test_team_colours_blue_4_is_blue():
     from matplotlib.colors import to_rgb
 
-    from radarcal.report.teams import TEAM_SHADES, team_of, track_colours
+    from radarcal.teams import TEAM_SHADES, team_of, track_colours
 
     labels = ["red_1", "red_3", "red_4", "blue_1", "blue_3", "blue_4", "B7", "R2", "#12"]
     col = track_colours(labels)
@@ -268,7 +268,7 @@ def test_team_colours_blue_4_is_blue():
 def test_minimap_and_error_figures_use_the_team_colours():
     from matplotlib.colors import to_hex
 
-    from radarcal.report.teams import track_colours
+    from radarcal.teams import track_colours
 
     # before: tab10 by sorted order made blue_4 (4th label) tab:red
     tracks = {k: np.c_[np.linspace(1, 5, 10), np.full(10, i + 1.0)] for i, k in enumerate(["blue_1", "blue_2", "blue_3", "blue_4", "red_1"])}

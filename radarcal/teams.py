@@ -1,4 +1,4 @@
-"""One colour table by team for every minimap / track figure of the report: red robots in reds, blue robots in
+"""One colour table by team for every minimap / track figure (the report's and the live minimap): red robots in reds, blue robots in
 blues, anything else (unlabelled ``#id`` tracks, other labels) in greys. A robot keeps its shade from figure to
 figure (the shade follows its number, not the order of the labels)."""
 
