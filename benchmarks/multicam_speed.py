@@ -223,7 +223,7 @@ def bench(kind: str = "two", frames: int = 90, paced_hz: float | None = None, ro
     macs, params = count_macs(640, len(NAMES))
     dec = {k: np.concatenate([np.asarray(s.cpu[k]) for s in streams.values()]) for k in ("decode", "letterbox")}
     decw = {k: np.concatenate([np.asarray(s.wall[k]) for s in streams.values()]) for k in ("decode", "letterbox")}
-    return {"kind": kind, "cams": cams, "frames_per_cam": min(count.values()), "fps_per_cam": min((len(v) - 1) / max(v[-1] - v[0], 1e-9) for v in out_t.values()), "cpu_ms_per_frame": cpu / n * 1e3,
+    return {"kind": kind, "cams": cams, "wall_s": wall, "frames_per_cam": min(count.values()), "fps_per_cam": min((len(v) - 1) / max(v[-1] - v[0], 1e-9) for v in out_t.values()), "cpu_ms_per_frame": cpu / n * 1e3,
             "cpu_stage_ms": {"decode": 1e3 * np.median(dec["decode"]), "letterbox": 1e3 * np.median(dec["letterbox"]),
                              **{k: 1e3 * np.median(v) for k, v in stage_cpu.items()}},
             "wall_stage_ms": {"decode": (1e3 * np.median(decw["decode"]), 1e3 * np.percentile(decw["decode"], 95)),
