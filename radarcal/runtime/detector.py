@@ -319,6 +319,7 @@ class OnnxDetector:
         self.model = OnnxModel(model_path, what, threads, spin, providers)
         self.parallel = max(int(parallel), 1)  # concurrent runs of a fixed-batch model over several images (run_batch)
         self._ahead: dict[int, Prepared] = {}
+        self._ahead_lock = threading.Lock()
         self._local = threading.local()
         self.path = self.model.path
         self.session = self.model.session
@@ -371,15 +372,17 @@ class OnnxDetector:
         """Letterbox ``image`` now (e.g. in the frame-prefetch thread) and keep it for the next :meth:`detect_batch`
         given the same image object, which then skips its preprocessing. Returns ``image``. At most 16 are kept."""
         p = self.prepare(image)
-        while len(self._ahead) >= 16:
-            self._ahead.pop(next(iter(self._ahead)), None)
-        self._ahead[id(image)] = p
+        with self._ahead_lock:  # the prefetch thread adds while the detect thread takes
+            while len(self._ahead) >= 16:
+                self._ahead.pop(next(iter(self._ahead)), None)
+            self._ahead[id(image)] = p
         return image
 
     def _take(self, image) -> Prepared | None:
         if isinstance(image, Prepared):
             return image
-        p = self._ahead.pop(id(image), None)
+        with self._ahead_lock:
+            p = self._ahead.pop(id(image), None)
         return p if p is not None and p.image is image else None
 
     def preprocess(self, images: list) -> tuple[np.ndarray, list[tuple[float, tuple[float, float], tuple[int, int]]]]:
