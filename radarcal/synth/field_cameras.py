@@ -6,7 +6,8 @@ The scene, robots and LiDAR are those of :mod:`radarcal.synth.field` (same publi
   0.2 m apart sideways, aimed at its own field point (the first camera like the single-camera rig, a tele at the far
   half by default). Each camera's clock is offset by ``offset_s`` (``k * 11 ms``): frames of different cameras never
   share a time stamp.
-* **A detector that depends on pixels**, per camera: a box of height ``h`` px is missed with probability rising
+* **A detector that depends on pixels**, per camera: it boxes the visible part of a robot (ray cast,
+  :func:`radarcal.synth.detections.visible_boxes`; none below 20 % visible); a box of height ``h`` px is missed with probability rising
   from 3 % at 16 px to 100 % at 6 px; its edges jitter by ``0.8 + 0.03 h`` px; its robot number is misread with
   probability ``0.01 + 0.45 clip((48 - h) / 30, 0, 1)`` — in spells (the state is redrawn on ~1 frame in 8), so a
   far robot is misread for a quarter of a second at a time, as a real classifier does, not independently per frame.
@@ -33,26 +34,14 @@ import numpy as np
 from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.field import FieldModel
-from radarcal.synth.field import (
-    FieldSceneConfig,
-    Rig,
-    SceneBoxes,
-    box_corners,
-    default_rig,
-    image_box,
-    make_robots,
-    raycast,
-    render_background,
-    render_frame,
-    robot_states,
-    scene_boxes,
-    simulate_lidar,
-)
+from radarcal.synth.detections import visible_boxes
+from radarcal.synth.field import FieldSceneConfig, Rig, SceneBoxes, default_rig, make_robots, render_background, render_frame, robot_states, scene_boxes, simulate_lidar
 
 __all__ = ["CameraSpec", "MultiCameraConfig", "parse_camera_specs", "camera_rigs", "detector_model", "write_multicam_replay"]
 
 _SPEC = re.compile(r"^(?P<name>[A-Za-z][\w-]*)=(?P<f>\d+(\.\d+)?)mm(:(?P<w>\d+)x(?P<h>\d+))?(@(?P<x>-?\d+(\.\d+)?):(?P<y>-?\d+(\.\d+)?))?$")
 _NUMBERS = (1, 2, 3, 4, 5, 7)
+MIN_VISIBLE = 0.2  # visible fraction of the silhouette below which the detector has no box (as synth match)
 
 
 @dataclass
@@ -140,18 +129,6 @@ def detector_model(h_px: np.ndarray | float) -> dict:
             "misread": 0.01 + 0.45 * np.clip((48.0 - h) / 30.0, 0.0, 1.0)}  # fmt: skip
 
 
-def _visible(field_model: FieldModel, rig: Rig, T_cam_field: np.ndarray, boxes_f: SceneBoxes, k_robot: int, n_static: int, c, size, yw) -> bool:
-    """Some of 9 points on the robot's box (corners + centre) in the image and not hidden (as synth field)."""
-    cam, o = rig.camera, rig.T_field_cam[:3, 3]
-    pts = np.vstack([box_corners(c, size * [0.98, 0.98, 0.98], yw), c + [0, 0, size[2] / 2]])
-    uvp, vp, _ = cam.project_from(T_cam_field, pts)
-    dvec = pts - o
-    dist = np.linalg.norm(dvec, axis=1)
-    tt, obj = raycast(field_model, boxes_f, o[None], dvec / dist[:, None])
-    own = obj == len(field_model.areas) + 1 + n_static + k_robot
-    return bool(np.any(vp & cam.in_image(uvp) & (own | (np.nan_to_num(tt, nan=np.inf) >= dist - 0.05))))
-
-
 def _fmt(x: float, nd: int = 4) -> float:
     return float(round(float(x), nd))
 
@@ -181,7 +158,6 @@ def write_multicam_replay(out_dir: str | Path, field_model: FieldModel, mc: Mult
     for k, cname in enumerate(names):
         rig = rigs[cname]
         cam = rig.camera
-        T_cam_field = geometry.invert_T(rig.T_field_cam)
         folder = out / "cameras" / cname / "images"
         folder.mkdir(parents=True, exist_ok=True)
         t_img = np.arange(n) / cfg.fps + k * mc.camera_offset_s
@@ -198,11 +174,11 @@ def write_multicam_replay(out_dir: str | Path, field_model: FieldModel, mc: Mult
             boxes_f = scene_boxes(field_model, robots, p_all[f], yaw_all[f])
             fname = f"{f:06d}.jpg"
             dets = []
+            vboxes, vfrac, _ = visible_boxes(field_model, cam, rig.T_field_cam, boxes_f, list(range(ns, ns + len(robots))))
             for j, r in enumerate(robots):
-                c, size, yw = p_all[f, j], np.asarray(r.size), yaw_all[f, j]
-                bb = image_box(cam, T_cam_field, c, size, yw)
-                v[f, j] = bb is not None and _visible(field_model, rig, T_cam_field, boxes_f, j, ns, c, size, yw)
-                h = float(bb[3] - bb[1]) if bb is not None else 0.0
+                bb = vboxes[j]  # the visible part: what a detector boxes
+                v[f, j] = vfrac[j] > 0
+                h = float(bb[3] - bb[1]) if v[f, j] else 0.0
                 model = detector_model(h)
                 if rng_det.random() < 1 / 8:  # a new spell of reading (or misreading) the number
                     misread[j] = rng_det.random() < model["misread"]
@@ -210,7 +186,7 @@ def write_multicam_replay(out_dir: str | Path, field_model: FieldModel, mc: Mult
                         wrong[j] = int(rng_det.choice([m for m in _NUMBERS if m != int(r.label.split("_")[1])]))
                 jit = rng_det.normal(0, model["jitter_px"], 4)
                 miss = rng_det.random() < model["miss"]
-                if not v[f, j] or miss or not alive[f]:
+                if vfrac[j] < MIN_VISIBLE or miss or not alive[f]:
                     continue
                 b = np.clip(bb + jit, [-0.5, -0.5, -0.5, -0.5], [cam.width - 0.5, cam.height - 0.5] * 2)
                 if b[2] - b[0] < 1 or b[3] - b[1] < 1:
