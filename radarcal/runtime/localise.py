@@ -142,24 +142,6 @@ class Localiser:
         xy = self._push_back(hit, self.radius)
         return np.column_stack([xy, self.surface_z(xy)]) * np.where(np.isfinite(hit[:, :1]), 1.0, np.nan)
 
-    def foot_hidden(self, uv_bottom: np.ndarray, hit: np.ndarray, box_h: np.ndarray, frac: float = 0.15, jump_m: float = 1.0) -> np.ndarray:
-        """(K,) True where the box bottom's ground ray lands on a raised area (highland, ramp) at the area's far edge:
-        the ray a little higher up the box (``frac`` of its height) reaches the ground more than ``jump_m`` further
-        on, so the robot may stand anywhere behind that edge with its foot hidden (a ground fix would put it metres
-        short). Such boxes get no ground fix."""
-        out = np.zeros(len(uv_bottom), bool)
-        if self.field is None or not len(uv_bottom):
-            return out
-        raised = np.isfinite(hit[:, 0]) & (hit[:, 2] > 0.05)
-        if not raised.any():
-            return out
-        up = np.asarray(uv_bottom, float)[raised] - np.column_stack([np.zeros(raised.sum()), np.maximum(frac * np.asarray(box_h, float)[raised], 2.0)])
-        g2 = self.from_ground(up)
-        r1 = np.linalg.norm(hit[raised, :2] - self.cam_origin[:2], axis=1)
-        r2 = np.linalg.norm(g2[:, :2] - self.cam_origin[:2], axis=1)
-        out[raised] = ~np.isfinite(r2) | (r2 > r1 + jump_m)
-        return out
-
     def locate(self, boxes: np.ndarray, depth_z: np.ndarray, depth_sigma: np.ndarray | None = None) -> Located:
         """Boxes (K,4) xyxy + depths (K,) (NaN = no LiDAR depth) -> :class:`Located`."""
         boxes = np.asarray(boxes, float).reshape(-1, 4)
@@ -184,7 +166,7 @@ class Localiser:
             uvb = np.column_stack([cx[~has], boxes[~has, 3]])
             g = self.from_ground(uvb)
             p[~has] = g
-            ok = np.isfinite(g[:, 0]) & ~self.foot_hidden(uvb, g, boxes[~has, 3] - boxes[~has, 1])
+            ok = np.isfinite(g[:, 0])
             src[np.flatnonzero(~has)[ok]] = "ground"
             # ground error for a pixel error dv: dR = (R^2 + h^2) / h * dv / f
             rng_h = np.linalg.norm(g[:, :2] - self.cam_origin[:2], axis=1)
