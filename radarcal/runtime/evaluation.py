@@ -161,9 +161,10 @@ def band_scores(results: Iterable[dict], truth_by_frame: dict[str, dict], origin
     * ``p95_m`` / ``median_m``: horizontal error of the output entry carrying the robot's label (located ones);
     * ``correct_label_pct``: robot-frames whose own label is on an entry within ``tol_m``;
     * ``twice_pct``: frames in which some true robot (any range) has two output entries within ``tol_m`` that are
-      nearer to it than to any other true robot — one robot reported twice."""
+      nearer to it than to any other true robot — one robot reported twice; ``twice_labelled_pct``: the same
+      counting only labelled entries with evidence this frame (those sent on the referee map)."""
     o = np.asarray(origin_xy, float)[:2]
-    err, n, right, frames, twice = [], 0, 0, 0, 0
+    err, n, right, frames, twice, twice_named = [], 0, 0, 0, 0, 0
     for res in results:
         tr = truth_by_frame.get(res["frame"])
         if tr is None:
@@ -176,6 +177,8 @@ def band_scores(results: Iterable[dict], truth_by_frame: dict[str, dict], origin
         if len(O) and len(T):
             own = (D <= tol_m) & (D == D.min(axis=1, keepdims=True))
             twice += bool((own.sum(axis=0) >= 2).any())
+            sent = np.array([x.get("label") is not None and x.get("source") != "predicted" for x in res["robots"]])  # what the referee map gets
+            twice_named += bool((own[sent].sum(axis=0) >= 2).any())
         labels = [x.get("label") for x in res["robots"]]
         for k, r in enumerate(rob):
             seen = (seen_by in r["visible_in"]) if (seen_by is not None and "visible_in" in r) else r.get("visible", True)
@@ -188,4 +191,5 @@ def band_scores(results: Iterable[dict], truth_by_frame: dict[str, dict], origin
                 right += D[i, k] <= tol_m
     e = np.asarray(err)
     return {"robot_frames": n, "located": len(e), "median_m": float(np.median(e)) if len(e) else None, "p95_m": float(np.percentile(e, 95)) if len(e) else None,
-            "correct_label_pct": 100.0 * right / n if n else None, "twice_pct": 100.0 * twice / frames if frames else None, "frames": frames}  # fmt: skip
+            "correct_label_pct": 100.0 * right / n if n else None, "twice_pct": 100.0 * twice / frames if frames else None,
+            "twice_labelled_pct": 100.0 * twice_named / frames if frames else None, "frames": frames}  # fmt: skip
