@@ -53,6 +53,7 @@ def run(
     ui: str = typer.Option(None, "--ui", help="Serve the live operator console on [HOST:]PORT (default host 127.0.0.1; docs/console.md)."),
     speed: float = typer.Option(None, "--speed", help="Replay at this multiple of real time (default: 1 with --ui, else as fast as possible; 0 = unpaced)."),
     field_pose: str = typer.Option("auto", "--field-pose", help="Camera field pose: chain (lidar-field T_field_lidar · T_lidar_cam), pnp (field-pnp), auto (chain when lidar-field converged, else pnp)."),
+    drift_check_s: float = typer.Option(0.0, "--drift-check-s", help="Every this many seconds re-register the LiDAR's static points to the field and warn when it moved > 2 cm / 0.1 deg (0 = off)."),
     as_json: JsonOpt = False,
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
@@ -110,7 +111,7 @@ def run(
         timing = {"cloud_sweep_s": float(meta["cloud_sweep_s"]), "cloud_latency_s": float(meta.get("cloud_latency_s", 0.0))}
     elif str(meta.get("generator", "")).startswith("radarcal synth field"):  # robots frozen at the cloud stamp
         timing = {"cloud_sweep_s": 0.0, "cloud_latency_s": 0.0}
-    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy, localise="lidar" if lidar_only else localise, **timing)
+    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy, localise="lidar" if lidar_only else localise, drift_check_s=_drift_s(drift_check_s), **timing)
     check_season(cfg.season, "--season" if season is not None else f"{bundle}: runtime.referee_season")
     check_outputs(bundle, [("track file", out), ("minimap", minimap)], b, inputs=[detections, rep.detections if rep else None, rep.truth if rep else None])
     if serial:
@@ -187,7 +188,7 @@ def run(
         if ui is not None:
             console = start_console(ui, pipe, b, cam_name, lidar_name if has_clouds else None, {"camera": cam_name, "team": cfg.team, "hero_range_offset_m": cfg.hero_range_offset_m})
             pairs, detect, on_frame = console.observe_pairs(pairs), console.observe_detect(detect), chain_callbacks(evaluator, console.on_frame)
-            for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None))):
+            for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None)), ("drift", pipe.drift and pipe.drift.snapshot)):
                 if callable(src):
                     console.add_health(name, src)
     try:
@@ -228,7 +229,7 @@ def run(
         summary["serial"] = {"port": serial, **link.snapshot(), "disconnects": link.stats.disconnects, "last_error": link.stats.last_error}
         if not link.stats.connects:
             warnings.append(f"referee link {serial} never connected ({link.stats.last_error or 'no reply'}): nothing was sent")
-    summary["warnings"] = warnings
+    summary["warnings"] = warnings + summary.get("drift", {}).get("warnings", [])
     if console is not None:
         summary["console"] = {"url": console.server.url, "messages_sent": console.sent, "refused_requests": len(console.server.refusals), "actions": len(console.server.accepted)}
 
@@ -254,6 +255,9 @@ def run(
         if s.get("serial"):
             q = s["serial"]
             typer.echo(f"  referee link {q['port']}: {q.get('sent', 0)} frames sent, {q['disconnects']} disconnects{', last error ' + q['last_error'] if q['last_error'] else ''}")
+        if s.get("drift") and s["drift"]["max"]:
+            d = s["drift"]
+            typer.echo(f"  LiDAR drift: {d['checks']} checks every {d['check_every_s']:g} s, largest {d['max']['cm']:.1f} cm / {d['max']['deg']:.3f} deg (t={d['max']['t']:.1f} s), {'MOVED' if d['moved'] else 'within'} {d['threshold_cm']:.0f} cm / {d['threshold_deg']:g} deg")
         for w in s["warnings"]:
             typer.echo(f"  warning: {w}")
 
@@ -289,6 +293,14 @@ def _open_detector(detector, names, layout, anchors, armour, armour_names, numbe
     err_console.print(f"detector {robot.describe()}" + (f"; armour {arm.describe()}" if arm else "") + (f"; number {num.path.name}" if num else ""),
                       highlight=False, markup=False)  # fmt: skip
     return DetectAhead(Recogniser(robot, arm, num))
+
+
+def _drift_s(v: float) -> float:
+    import math
+
+    if not math.isfinite(v) or v < 0:
+        raise InputError("--drift-check-s", f"expected seconds >= 0 (0 = off), got {v}")
+    return float(v)
 
 
 def _cloud_offset(text: str) -> float | str:
