@@ -1,6 +1,7 @@
 """LiDAR drift monitor (``radarcal run --drift-check-s``): detection of a bumped LiDAR and false alarms.
 
     PYTHONPATH=$PWD python -m benchmarks.drift [--seeds 0,1,2] [--seconds 10]
+    PYTHONPATH=$PWD python -m benchmarks.drift latency REPLAY [SPEED]   # frame latency, monitor off vs on
 
 Clouds ray cast (``synth.field.simulate_lidar``, Mid-70-like rosette, 4 k points per 0.1 s, 2 cm range noise, ten
 robots moving ~1.5 m/s) from a station behind either end, on both field families: the built-in polygon field and
@@ -60,6 +61,9 @@ def main(argv: list[str]) -> int:
     from radarcal.field import builtin_field, load_field
 
     args = list(argv)
+    if args and args[0] == "latency":
+        latency(args[1], args[2] if len(args) > 2 else "1")
+        return 0
     seeds, seconds = "0,1,2", 10.0
     if "--seeds" in args:
         seeds = args[args.index("--seeds") + 1]
@@ -90,6 +94,30 @@ def main(argv: list[str]) -> int:
                   f"{100 * last.m:.2f} cm {last.deg:.3f} deg vs {100 * true_m:.2f} cm {true_deg:.3f} deg | {'YES' if said_s else 'no'} | "
                   f"{np.median(secs + [c.seconds for c in mb.checks]):.2f} |", flush=True)  # fmt: skip
     return 0
+
+
+
+def latency(replay: str, speed: str = "1") -> None:
+    """Frame latency of ``radarcal run --replay R`` with the drift monitor off and on (every 1 s), same process."""
+    import contextlib
+    import io
+    import json
+
+    from radarcal.cli.main import main as cli
+
+    print("| `--drift-check-s` | frames | checks | per-frame ms median / p95 (cloud + localise + track) | largest drift | CPU s per check (median) |")
+    print("|---|---|---|---|---|---|")
+    for s in ("0", "1", "5", "0", "1", "5"):
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            assert cli(["run", "--replay", replay, "--drift-check-s", s, "--speed", speed, "-q", "--json"]) == 0
+        d = json.loads(buf.getvalue())
+        lat = d["latency_ms"]
+        med = sum(lat[k]["median"] for k in ("cloud", "localise", "track"))
+        p95 = sum(lat[k]["p95"] for k in ("cloud", "localise", "track"))
+        dr = d.get("drift")
+        big = f"{dr['max']['cm']:.2f} cm {dr['max']['deg']:.3f} deg" if dr and dr["max"] else "-"
+        print(f"| {s} | {d['frames']} | {dr['checks'] if dr else '-'} | {med:.2f} / {p95:.2f} | {big} | {dr['median_check_cpu_s'] if dr else '-'} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -38,12 +38,12 @@ def _check_bumped(fm, seed, bump_m=0.03, bump_deg=0.3, t_bump=3.05, seconds=8.0)
     assert len(before) >= 2 and not any(c.moved for c in before), [c.to_dict() for c in before]
     assert mon.moved and len(said) == 1, said
     assert mon.first_warning_t - t_bump <= 3.0, mon.first_warning_t  # within a few seconds (2 checks in a row)
-    # the measured drift is the truth's, within 0.5 cm / 0.03 deg
+    # the measured drift is the truth's, within 0.7 cm / 0.03 deg
     true_deg, true_m = geometry.pose_error(T1, T0)
     last = mon.checks[-1]
-    assert abs(last.m - true_m) < 0.005 and abs(last.deg - true_deg) < 0.03, (last.to_dict(), true_m, true_deg)
+    assert abs(last.m - true_m) < 0.007 and abs(last.deg - true_deg) < 0.03, (last.to_dict(), true_m, true_deg)
     err_deg, err_m = geometry.pose_error(last.T_field_lidar, T1)
-    assert err_deg < 0.03 and err_m < 0.006, (err_deg, err_m)
+    assert err_deg < 0.03 and err_m < 0.008, (err_deg, err_m)
     s = mon.summary()
     assert s["moved"] and s["warnings"] and "moved at t=" in s["warnings"][0]
     return mon
