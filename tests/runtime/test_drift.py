@@ -92,3 +92,16 @@ def test_bump_and_false_alarms_per_seed(family, seed):
     stream, T0, _ = _stream(fm, 20 + seed, 0.01, 0.04, 2.05, 6.0)
     mon, said = _monitor(fm, T0, stream)
     assert not said, [c.to_dict() for c in mon.checks]
+
+
+def test_the_check_imports_neither_open3d_nor_a_solver():
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from radarcal.field import builtin_field; from radarcal.runtime.drift import DriftConfig, check_drift, static_target; "
+            "from radarcal.synth.field import default_rig; fm = builtin_field('rmuc_schematic'); T = default_rig(fm).T_field_lidar; "
+            "tg = static_target(fm); Q = tg.points[np.random.default_rng(0).choice(len(tg.points), 20000)]; "
+            "P = (Q - T[:3, 3]) @ T[:3, :3]; c = check_drift(P, T, tg, DriftConfig()); assert c.m < 0.005 and c.deg < 0.02, c; "
+            "bad = [m for m in sys.modules if m.startswith(('open3d', 'radarcal.extrinsics'))]; assert not bad, bad")  # fmt: skip
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
