@@ -28,7 +28,7 @@ import numpy as np
 from radarcal.errors import InputError
 from radarcal.plain import to_plain as _plain
 
-__all__ = ["FieldModel", "OccupancyGrid", "HeightRaster", "polygon_field_mesh", "load_field", "field_from_dict", "BUILTIN_FIELDS", "builtin_field", "REQUIRED_LANDMARKS"]
+__all__ = ["FieldModel", "OccupancyGrid", "HeightRaster", "polygon_field_mesh", "static_mesh", "box_mesh", "merge_meshes", "load_field", "field_from_dict", "BUILTIN_FIELDS", "builtin_field", "REQUIRED_LANDMARKS"]
 
 REQUIRED_LANDMARKS = ("red_outpost", "blue_outpost", "red_base", "blue_base")
 
@@ -529,6 +529,40 @@ def polygon_field_mesh(fm: "FieldModel", margin: float = 1.0):
             k1 = (k + 1) % K
             T.extend([[g + k, g + k1, b + k1], [g + k, b + k1, b + k]])
     return TriangleMesh(np.array(V), np.array(T), f"{fm.name} (triangulated polygons)", "m")
+
+
+def box_mesh(center: np.ndarray, size: np.ndarray, yaw: float):
+    """Closed box (12 triangles) standing on ``center`` (bottom centre), size (l, w, h), heading ``yaw`` (rad)."""
+    from radarcal.io.meshes import TriangleMesh
+
+    l, w, h = size
+    sx = np.array([-1, 1, 1, -1, -1, 1, 1, -1]) * l / 2
+    sy = np.array([-1, -1, 1, 1, -1, -1, 1, 1]) * w / 2
+    sz = np.array([0, 0, 0, 0, 1, 1, 1, 1]) * h
+    c, s = np.cos(yaw), np.sin(yaw)
+    V = np.stack([center[0] + c * sx - s * sy, center[1] + s * sx + c * sy, center[2] + sz], 1)
+    F = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
+    return TriangleMesh(V, F, "box")
+
+
+def merge_meshes(meshes: list, source: str = "merged"):
+    """One :class:`radarcal.io.meshes.TriangleMesh` of several (vertices stacked, triangle indices offset)."""
+    from radarcal.io.meshes import TriangleMesh
+
+    V, F, off = [], [], 0
+    for m in meshes:
+        V.append(m.vertices)
+        F.append(m.triangles + off)
+        off += len(m.vertices)
+    return TriangleMesh(np.concatenate(V), np.concatenate(F), source)
+
+
+def static_mesh(fm: "FieldModel"):
+    """Everything of the field a LiDAR sees that does not move, as one triangle mesh in the field frame: the surface
+    mesh (a polygon field: its triangulation) plus the ``structures`` boxes (bases, outposts)."""
+    surface = fm.mesh if fm.mesh is not None else polygon_field_mesh(fm)
+    boxes = [box_mesh(np.asarray(s["center"], float), np.asarray(s["size"], float), float(s.get("yaw", 0.0))) for s in fm.structures]
+    return merge_meshes([surface, *boxes], f"{fm.name} (surface + structures)") if boxes else surface
 
 
 def _o3d_scene(mesh):

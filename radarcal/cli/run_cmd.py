@@ -58,6 +58,7 @@ def run(
     ui: str = typer.Option(None, "--ui", help="Serve the live operator console on [HOST:]PORT (default host 127.0.0.1; docs/console.md)."),
     speed: float = typer.Option(None, "--speed", help="Replay at this multiple of real time (default: 1 with --ui, else as fast as possible; 0 = unpaced)."),
     field_pose: str = typer.Option("auto", "--field-pose", help="Camera field pose: chain (lidar-field T_field_lidar · T_lidar_cam), pnp (field-pnp), auto (chain when lidar-field converged, else pnp)."),
+    drift_check_s: float = typer.Option(0.0, "--drift-check-s", help="Every this many seconds re-register the LiDAR's static points to the field and warn when it moved > 2 cm / 0.1 deg (0 = off)."),
     as_json: JsonOpt = False,
 ) -> None:
     """Localise robots on the field from camera(s) + LiDAR, track them, draw the minimap, talk to the referee system."""
@@ -77,7 +78,7 @@ def run(
         return run_recording(replay, bundle=bundle, speed=speed or 0.0, detector=detector, names=names, conf=conf, threads=threads, detections=detections, serial=serial,
                              out=out, minimap=minimap, camera=camera, lidar=lidar, team=team, season=season, max_frames=max_frames, no_lidar=no_lidar,
                              quiet=quiet, as_json=as_json, sentry_xy=sentry_xy)  # fmt: skip
-    o.cloud_offset, o.sentry_xy = _cloud_offset(cloud_offset), _sentry_xy(sentry_xy)
+    o.cloud_offset, o.sentry_xy, o.drift_check_s = _cloud_offset(cloud_offset), _sentry_xy(sentry_xy), _drift_s(drift_check_s)
     plan = plan_run(o)
     check_season(plan.cfg.season, "--season" if season is not None else f"{plan.bundle_path}: runtime.referee_season")
     check_outputs(plan.bundle_path, [("track file", out), ("minimap", minimap)], plan.bundle, inputs=plan.inputs)
@@ -111,8 +112,19 @@ def _human(s: dict) -> None:
     if s.get("serial"):
         q = s["serial"]
         typer.echo(f"  referee link {q['port']}: {q.get('sent', 0)} frames sent, {q['disconnects']} disconnects{', last error ' + q['last_error'] if q['last_error'] else ''}")
+    if s.get("drift") and s["drift"]["max"]:
+        d = s["drift"]
+        typer.echo(f"  LiDAR drift: {d['checks']} checks every {d['check_every_s']:g} s, largest {d['max']['cm']:.1f} cm / {d['max']['deg']:.3f} deg (t={d['max']['t']:.1f} s), {'MOVED' if d['moved'] else 'within'} {d['threshold_cm']:.0f} cm / {d['threshold_deg']:g} deg")
     for w in s["warnings"]:
         typer.echo(f"  warning: {w}")
+
+
+def _drift_s(v: float) -> float:
+    import math
+
+    if not math.isfinite(v) or v < 0:
+        raise InputError("--drift-check-s", f"expected seconds >= 0 (0 = off), got {v}")
+    return float(v)
 
 
 def _cloud_offset(text: str) -> float | str:

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radarcal import geometry
+from radarcal.registration import point_to_plane_rows, robust_point_to_plane
 
 __all__ = ["MeshTarget", "LidarFieldOptions", "LidarFieldResult", "register_lidar_field", "floor_plane", "side_search", "PARAMS"]
 
@@ -130,31 +131,9 @@ class LidarFieldResult:
                 "candidates": self.candidates}
 
 
-def _skew_rows(p: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Jacobian rows of r = n · (p + ω × p + v) w.r.t. (ω, v): [p × n, n]."""
-    return np.hstack([np.cross(p, n), n])
-
-
 def _gn(points: np.ndarray, T: np.ndarray, target: MeshTarget, gates, iters: int) -> np.ndarray:
-    for gate in gates:
-        for _ in range(iters):
-            p = points @ T[:3, :3].T + T[:3, 3]
-            q, n = target.closest(p)
-            d = np.linalg.norm(p - q, axis=1)
-            m = d < gate
-            if m.sum() < 50:
-                return T
-            r = np.sum((p[m] - q[m]) * n[m], axis=1)
-            s = gate / 2
-            w = (s * s / (s * s + r * r)) ** 2  # Geman-McClure
-            J = _skew_rows(p[m], n[m])
-            H = (J * w[:, None]).T @ J + 1e-9 * np.eye(6)
-            g = (J * w[:, None]).T @ r
-            dx = -np.linalg.solve(H, g)
-            T = geometry.make_T(geometry.rotvec_to_R(dx[:3]), dx[3:]) @ T
-            if np.linalg.norm(dx[:3]) < 2e-6 and np.linalg.norm(dx[3:]) < 2e-5:
-                break
-    return T
+    """Robust coarse-to-fine point-to-plane Gauss-Newton (the shared core, :func:`radarcal.registration.robust_point_to_plane`)."""
+    return robust_point_to_plane(points, T, target, tuple(gates), iters)
 
 
 def _score(points: np.ndarray, T: np.ndarray, target: MeshTarget, inlier_m: float) -> tuple[int, int]:
@@ -177,7 +156,7 @@ def _sigmas(points: np.ndarray, T: np.ndarray, target: MeshTarget, opt: LidarFie
     r = np.sum((p[m] - q[m]) * n[m], axis=1)
     s = gate / 2
     w = (s * s / (s * s + r * r)) ** 2
-    J = _skew_rows(p[m], n[m])
+    J = point_to_plane_rows(p[m], n[m])
     Jw = J * w[:, None]
     H = Jw.T @ J + 1e-12 * np.eye(6)
     g = Jw.T @ r

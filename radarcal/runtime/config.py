@@ -43,6 +43,7 @@ class RunConfig:
     window_sweeps: int = 1  # clouds integrated before clustering (1 measured best: docs/runtime.md)
     learn_background: bool = True
     ground_min_aspect: float = 0.55  # box height / width below which a LiDAR-first box-only fix takes no ground ray
+    drift_check_s: float = 0.0  # re-register the LiDAR to the field every this many seconds (0: off; runtime/drift.py)
 
     # bundle runtime key -> field (read by from_bundle)
     BUNDLE_KEYS = {"referee_season": "season", "robot_radius_m": "robot_radius_m", "cloud_queue_points": "cloud_queue_points", "cloud_queue_age_s": "cloud_queue_age_s",

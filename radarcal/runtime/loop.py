@@ -168,12 +168,16 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
                 line = f"frame {n:6d} t={res.t:8.2f}s | {timer.fps():5.1f} FPS | ms: {stages} | robots {len(res.robots)} {srcs}{ser}"
                 if status_extra is not None:
                     line += status_extra()
+                if getattr(pipeline, "drift", None) is not None:
+                    line += pipeline.drift.status_text()
                 sys.stderr.write(("\r" + line + "\x1b[K") if tty else line + "\n")
                 sys.stderr.flush()
             if max_frames is not None and n >= max_frames:
                 break
     finally:
         blas.__exit__(None, None, None)
+        if getattr(pipeline, "drift", None) is not None:
+            pipeline.drift.finish()  # the last check belongs in the summary
         if out_f:
             out_f.close()
         if writer is not None:
@@ -186,4 +190,4 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             raise InputError(minimap_path, "cannot write minimap image")
     wall = time.perf_counter() - t_start
     return {"frames": n, "wall_s": wall, "fps": n / wall if wall > 0 else 0.0, "latency_ms": timer.summary(), "robot_frames": located,
-            "clouds": pipeline.clouds_in, "bad_frames": bad_frames, "results": results}  # fmt: skip
+            "clouds": pipeline.clouds_in, "bad_frames": bad_frames, "results": results, **({"drift": pipeline.drift.summary()} if getattr(pipeline, "drift", None) is not None else {})}  # fmt: skip

@@ -61,6 +61,7 @@ class RunOptions:
     ui: str | None = None
     speed: float | None = None
     field_pose: str = "auto"
+    drift_check_s: float = 0.0  # re-register the LiDAR to the field every this many seconds (0 = off)
 
 
 @dataclass
@@ -152,7 +153,8 @@ def plan_run(o: RunOptions) -> RunPlan:
         timing = {"cloud_sweep_s": float(meta["cloud_sweep_s"]), "cloud_latency_s": float(meta.get("cloud_latency_s", 0.0))}
     elif str(meta.get("generator", "")).startswith("radarcal synth field"):  # robots frozen at the cloud stamp
         timing = {"cloud_sweep_s": 0.0, "cloud_latency_s": 0.0}
-    cfg = RunConfig.from_bundle(b, team=o.team, season=o.season, sentry_xy=o.sentry_xy, localise="lidar" if lidar_only else o.localise, **timing)
+    cfg = RunConfig.from_bundle(b, team=o.team, season=o.season, sentry_xy=o.sentry_xy, localise="lidar" if lidar_only else o.localise,
+                                drift_check_s=o.drift_check_s, **timing)
     return RunPlan(o, Path(bundle), b, rep, cams, lidar, has_clouds, lidar_only, cfg, [f"bundle {w}" for w in forced_entries(b)], videos, multi)
 
 
@@ -234,7 +236,8 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
         if o.ui is not None:
             console = start_console(o.ui, pipe, b, cam_name, lidar_name if has_clouds else None, {"camera": cam_name, "team": cfg.team, "hero_range_offset_m": cfg.hero_range_offset_m})
             pairs, detect, on_frame = console.observe_pairs(pairs), console.observe_detect(detect), chain_callbacks(evaluator, console.on_frame)
-            for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None))):
+            for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None)),
+                              ("drift", getattr(pipe, "drift", None) and pipe.drift.snapshot)):
                 if callable(src):
                     console.add_health(name, src)
     rec_manifest = None
@@ -287,7 +290,7 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
         summary["serial"] = {"port": o.serial, **link.snapshot(), "disconnects": link.stats.disconnects, "last_error": link.stats.last_error}
         if not link.stats.connects:
             warnings.append(f"referee link {o.serial} never connected ({link.stats.last_error or 'no reply'}): nothing was sent")
-    summary["warnings"] = warnings
+    summary["warnings"] = warnings + summary.get("drift", {}).get("warnings", [])
     if console is not None:
         summary["console"] = {"url": console.server.url, "messages_sent": console.sent, "refused_requests": len(console.server.refusals), "actions": len(console.server.accepted)}
     return summary

@@ -154,6 +154,11 @@ class Pipeline:
         self.dead: dict[str, bool] = {}  # label -> its armour was grey when last detected
         if cfg.localise not in LOCALISE_MODES:
             raise ValueError(f"localise: expected one of {', '.join(LOCALISE_MODES)}, got {cfg.localise!r}")
+        self.drift = None  # LiDAR drift monitor (--drift-check-s): re-registers the static points in a worker thread
+        if lidar is not None and cfg.drift_check_s > 0 and self.field_model is not None:
+            from radarcal.runtime.drift import DriftConfig, DriftMonitor
+
+            self.drift = DriftMonitor(self.field_model, self.T_field_cam @ T_cam_lidar, DriftConfig(check_every_s=cfg.drift_check_s, window_s=min(cfg.drift_check_s, 2.0)), lidar)
         self.lidar_first = None
         if lidar is not None and cfg.localise != "box":
             from radarcal.runtime.lidar_first import LidarFirst, LidarFirstConfig
@@ -191,6 +196,8 @@ class Pipeline:
                 v.queue.push(t, points)
         if self.lidar_first is not None:
             self.lidar_first.add_cloud(t, points)
+        if self.drift is not None:
+            self.drift.add_cloud(t, points)
         if self.queue is not None or self.lidar_first is not None:
             self.clouds_in += 1
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radarcal import geometry
-from radarcal.field import FieldModel
+from radarcal.field import FieldModel, box_mesh, merge_meshes
 from radarcal.io.meshes import TriangleMesh
 from radarcal.synth.lidar_patterns import livox_rosette_dirs
 
@@ -63,34 +63,13 @@ def station_pose(field_model: FieldModel, rng: np.random.Generator, side: str = 
     return T
 
 
-def box_mesh(center: np.ndarray, size: np.ndarray, yaw: float) -> TriangleMesh:
-    """Closed box standing on ``center`` (bottom centre), size (l, w, h), heading ``yaw``."""
-    l, w, h = size
-    sx = np.array([-1, 1, 1, -1, -1, 1, 1, -1]) * l / 2
-    sy = np.array([-1, -1, 1, 1, -1, -1, 1, 1]) * w / 2
-    sz = np.array([0, 0, 0, 0, 1, 1, 1, 1]) * h
-    c, s = np.cos(yaw), np.sin(yaw)
-    V = np.stack([center[0] + c * sx - s * sy, center[1] + s * sx + c * sy, center[2] + sz], 1)
-    F = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4], [3, 4, 7]])
-    return TriangleMesh(V, F, "box")
-
-
-def _merge(meshes: list[TriangleMesh]) -> TriangleMesh:
-    V, F, off = [], [], 0
-    for m in meshes:
-        V.append(m.vertices)
-        F.append(m.triangles + off)
-        off += len(m.vertices)
-    return TriangleMesh(np.concatenate(V), np.concatenate(F), "merged")
-
-
 def venue_mesh(size: tuple[float, float], kind: str = "hall") -> TriangleMesh:
     """The hall around a field: ``hall`` — walls 6-8 m beyond the boundary up to 9 m, a ceiling at 9 m, stepped
     stands along both long sides; ``open`` — walls 25 m away only."""
     L, W = size
     if kind == "open":
         m = 25.0
-        return _merge([box_mesh(np.array([L / 2, -m, 0.0]), np.array([L + 2 * m, 0.5, 6.0]), 0.0),
+        return merge_meshes([box_mesh(np.array([L / 2, -m, 0.0]), np.array([L + 2 * m, 0.5, 6.0]), 0.0),
                        box_mesh(np.array([L / 2, W + m, 0.0]), np.array([L + 2 * m, 0.5, 6.0]), 0.0),
                        box_mesh(np.array([-m, W / 2, 0.0]), np.array([0.5, W + 2 * m, 6.0]), 0.0),
                        box_mesh(np.array([L + m, W / 2, 0.0]), np.array([0.5, W + 2 * m, 6.0]), 0.0)])
@@ -104,7 +83,7 @@ def venue_mesh(size: tuple[float, float], kind: str = "hall") -> TriangleMesh:
     for k in range(4):  # stands: four steps of 0.6 m rising away from the field on both long sides
         parts.append(box_mesh(np.array([L / 2, -2.5 - 1.2 * k, 0.0]), np.array([L, 1.2, 0.6 * (k + 1)]), 0.0))
         parts.append(box_mesh(np.array([L / 2, W + 2.5 + 1.2 * k, 0.0]), np.array([L, 1.2, 0.6 * (k + 1)]), 0.0))
-    return _merge(parts)
+    return merge_meshes(parts)
 
 
 def clutter_from(mesh: TriangleMesh, field_model: FieldModel, min_distance_m: float = 0.1) -> TriangleMesh:

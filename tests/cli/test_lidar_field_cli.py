@@ -94,3 +94,45 @@ def test_run_field_pose_chain_pnp_auto():
     np.testing.assert_allclose(resolve_field_pose(b, "cam0", "lidar0", "pnp")[0], T_field_cam, atol=1e-12)
     b.transforms["T_field_lidar0"].residual["verdict"] = "degenerate"
     assert "field-pnp" in resolve_field_pose(b, "cam0", "lidar0", "auto")[1]
+
+
+def _ros2_bag(path, parts, topics=("/livox/lidar", "/points")):
+    """A ROS2 mcap bag (written by rosbags): the scene as Livox CustomMsg clouds on the first topic, a decoy
+    PointCloud2 on the second (far points: a bag with several cloud topics needs --cloud-topic)."""
+    from bag_writer import livox_msg, pc2_msg, typestore
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores
+
+    ts = typestore(Stores.ROS2_HUMBLE, "livox_ros_driver2")
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        a = w.add_connection(topics[0], "livox_ros_driver2/msg/CustomMsg", typestore=ts)
+        b = w.add_connection(topics[1], "sensor_msgs/msg/PointCloud2", typestore=ts)
+        for k, p in enumerate(parts):
+            w.write(a, (10 + k) * 10**8, ts.serialize_cdr(livox_msg(ts, "livox_ros_driver2", p, np.full(len(p), 9), 1.0 + 0.1 * k, ros1=False), "livox_ros_driver2/msg/CustomMsg"))
+        decoy = np.random.default_rng(0).normal(0, 1, (3000, 3)).astype(np.float32) + [0, 0, 50]
+        w.write(b, 2 * 10**9, ts.serialize_cdr(pc2_msg(ts, decoy, 2.0), "sensor_msgs/msg/PointCloud2"))
+    return path
+
+
+@pytest.mark.parametrize("kind", ["ros1", pytest.param("ros2", marks=pytest.mark.slow)])
+def test_cloud_from_a_bag(scene, tmp_path, capsys, kind):
+    """--cloud takes a ROS1 bag / ROS2 bag (rosbags-written, Livox CustomMsg): its clouds are merged into the scene
+    and registered like the cloud file; a ROS2 bag with two cloud topics needs --cloud-topic."""
+    from bag_writer import write_ros1_livox_bag
+
+    tmp, mesh, sc = scene
+    parts = np.array_split(sc.points_lidar.astype(np.float32), 5)
+    b = tmp_path / "calib.yaml"
+    args = ["lidar-field", "--bundle", str(b), "--field-mesh", str(mesh), "--init", str(tmp / "init.json"), "--max-points", "6000", "--json"]
+    if kind == "ros1":
+        bag = write_ros1_livox_bag(tmp_path / "scene.bag", parts, [1700000000.0 + 0.1 * k for k in range(5)])
+    else:
+        bag = _ros2_bag(tmp_path / "scene_ros2", parts)
+        assert main([*args, "--cloud", str(bag)]) == 2
+        assert "several cloud topics" in capsys.readouterr().err and not b.exists()
+        args += ["--cloud-topic", "/livox/lidar"]
+    rc = main([*args, "--cloud", str(bag)])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["verdict"] == "converged" and out["n_points"] == len(sc.points_lidar)
+    deg, m = geometry.pose_error(load_bundle(b).T("field", "lidar0"), sc.T_field_lidar)
+    assert deg < 0.05 and m < 0.02, (deg, m)
