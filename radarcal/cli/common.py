@@ -26,7 +26,7 @@ err_console = Console(stderr=True)
 BundleOpt = Annotated[Path, typer.Option("--bundle", "-b", help="Calibration bundle (YAML); a calibration command creates it when missing and adds its result.")]
 ReplayBundleOpt = Annotated[Optional[Path], typer.Option("--bundle", "-b", help="Calibration bundle (default: calib.yaml inside --replay).")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable summary on stdout.")]
-CloudTopicOpt = Annotated[Optional[str], typer.Option("--cloud-topic", help="Bag topic of the clouds (default: every Livox CustomMsg / PointCloud2 topic; a --cloud scene bag with several needs one).")]
+CloudTopicOpt = Annotated[Optional[str], typer.Option("--cloud-topic", help="Bag topic of the clouds (default: every Livox CustomMsg / PointCloud2 topic; a scene bag with several needs one).")]
 
 
 def to_jsonable(obj: Any) -> Any:
