@@ -9,7 +9,7 @@ import typer
 
 from radarcal import geometry
 from radarcal.bundle import Provenance, hash_inputs, load_bundle, load_or_create_bundle, save_bundle
-from radarcal.cli.common import JsonOpt, command_line, emit
+from radarcal.cli.common import JsonOpt, command_line, emit, parse_image_size
 from radarcal.cli.outputs import check_outputs
 from radarcal.errors import InputError
 from radarcal.io import export_camera, import_camera, read_transform
@@ -42,16 +42,6 @@ def _readout(b, e) -> str | None:
         return None
     T_cam_other = b.T(cam, other)
     return format_camera_on_field(T_cam_other) if other == "field" else format_camera_in_lidar(T_cam_other)
-
-
-def parse_image_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().replace("*", "x").split("x"))
-    except ValueError:
-        raise InputError("--image-size", f"expected WIDTHxHEIGHT, e.g. 1280x1024, got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise InputError("--image-size", f"width and height must be positive, got {text!r}")
-    return w, h
 
 
 @app.command()

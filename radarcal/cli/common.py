@@ -14,9 +14,10 @@ from typing import Annotated, Any, Callable, Optional
 import typer
 from rich.console import Console
 
+from radarcal.errors import InputError
 from radarcal.plain import to_plain
 
-__all__ = ["err_console", "emit", "progress", "BundleOpt", "ReplayBundleOpt", "JsonOpt", "CloudTopicOpt", "to_jsonable", "command_line"]
+__all__ = ["err_console", "emit", "progress", "BundleOpt", "ReplayBundleOpt", "JsonOpt", "CloudTopicOpt", "to_jsonable", "command_line", "parse_image_size"]
 
 # Progress bars and logs go to stderr so that --json output on stdout stays clean.
 err_console = Console(stderr=True)
@@ -61,3 +62,14 @@ def command_line() -> str:
 
     argv = sys.argv[1:] if _current_argv is None else _current_argv
     return " ".join(["radarcal", *(shlex.quote(str(a)) for a in argv)])
+
+
+def parse_image_size(text: str, flag: str = "--image-size") -> tuple[int, int]:
+    """``WIDTHxHEIGHT`` (``1280x1024``, also ``1280*1024``) -> (width, height); ``InputError(flag, ...)`` otherwise."""
+    try:
+        w, h = (int(v) for v in text.lower().replace("*", "x").split("x"))
+    except ValueError:
+        raise InputError(flag, f"expected WIDTHxHEIGHT, e.g. 1280x1024, got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise InputError(flag, f"width and height must be positive, got {text!r}")
+    return w, h
