@@ -10,7 +10,7 @@ import typer
 
 from radarcal.cli.board_options import BOARD, BoardKind, BoardKindOpt, BoardLayout, ColsOpt, DictOpt, LayoutOpt, MarkerOpt, RowsOpt, SquareOpt, board_spec
 from radarcal.cli.common import JsonOpt, command_line, emit, parse_image_size, progress
-from radarcal.cli.outputs import check_output
+from radarcal.io.outputs import check_output
 from radarcal.errors import InputError
 
 
