@@ -63,7 +63,8 @@ def format_camera_on_field(T_cam_field: np.ndarray) -> str:
 
 
 def bundle_summary(b) -> dict:
-    """What ``radarcal bundle show`` prints: cameras, transforms (with xyz / rpy and the camera readout), sensors, field, runtime, sessions."""
+    """What ``radarcal bundle show`` prints: cameras, transforms (with xyz / rpy and the camera readout), sensors, field, runtime, sessions,
+    the cameras' cross-checks."""
     cams = {
         n: {"model": e.camera.model, "image_size": list(e.camera.image_size), "K": e.camera.K, "dist": e.camera.dist, "rms_px": e.rms_px, "sigma": e.sigma, "provenance": e.provenance.to_dict()}
         for n, e in b.cameras.items()
@@ -73,7 +74,11 @@ def bundle_summary(b) -> dict:
         xyz_rpy = geometry.T_to_xyz_rpy_deg(e.T)
         tfs[n] = {"target": e.target, "source": e.source, "T": e.T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "method": e.method, "residual": e.residual, "sigma": e.sigma,
                   "readout": entry_readout(b, e)}
-    return {"path": str(b.path), "cameras": cams, "sensors": b.sensors, "transforms": tfs, "field": (b.field_model or {}).get("name"), "runtime": b.runtime, "sessions": b.sessions}
+    from radarcal.pnp.cross_check import bundle_cross_checks, format_agreement
+
+    checks = [{**vars(p), "text": format_agreement(p)} for p in bundle_cross_checks(b)]  # how well the cameras agree on the same field point
+    return {"path": str(b.path), "cameras": cams, "sensors": b.sensors, "transforms": tfs, "field": (b.field_model or {}).get("name"), "runtime": b.runtime, "sessions": b.sessions,
+            "cross_check": checks}
 
 
 def entry_readout(b, e) -> str | None:

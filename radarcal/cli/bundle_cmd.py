@@ -43,6 +43,8 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: JsonO
         if s["field"]:
             typer.echo(f"  field: {s['field']}")
         typer.echo(f"  runtime: {s['runtime']}")
+        for c in s["cross_check"]:
+            typer.echo(f"  cross-check {c['text']}")
 
     emit(bundle_summary(b), as_json, human)
 
@@ -143,6 +145,9 @@ def set_transform(
     T = read_transform(file)
     b = load_or_create_bundle(bundle)
     b.set_transform(target, source, T, method="manual (set-transform)", provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs([file])))
+    from radarcal.extrinsics.lidar_camera_chain import refresh_derived
+
+    refresh_derived(b, command_line())  # transforms derived through a stereo pair follow the new entry
     save_bundle(b, bundle)
     xyz_rpy = geometry.T_to_xyz_rpy_deg(T)
     summary = {"name": f"T_{target}_{source}", "target": target, "source": source, "T": T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "bundle": str(bundle)}

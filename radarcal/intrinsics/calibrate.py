@@ -143,6 +143,7 @@ class IntrinsicsRun:
     stereo: StereoResult | None
     pair_names: list[tuple[str, str]]
     options: IntrinsicsOptions
+    derived: object = None  # what store() re-derived through the stereo pair (radarcal.extrinsics.lidar_camera_chain.refresh_derived)
 
     @property
     def refusals(self) -> list[str]:
@@ -170,6 +171,8 @@ class IntrinsicsRun:
         if self.stereo is not None:
             st, (c0, c1) = self.stereo, (self.cameras[0][0].name, self.cameras[1][0].name)
             out["stereo"] = {"T": f"T_{c1}_{c0}", "T_cam1_cam0": st.T_cam1_cam0, "baseline_m": st.baseline_m, "sigma": st.sigma, "rms_px": st.rms_px, "pairs": st.n_pairs}
+            if self.derived is not None:
+                out["stereo"]["derived"] = self.derived
         return out
 
     def store(self, b, command: str) -> None:
@@ -199,6 +202,9 @@ class IntrinsicsRun:
             b.set_transform(c1, c0, st.T_cam1_cam0, method="intrinsics --right (board pairs, " + how,
                             residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)
             StereoSession.from_result(c0, c1, st, self.pair_names).save(b, f"stereo/{c0}_{c1}")
+            from radarcal.extrinsics.lidar_camera_chain import refresh_derived  # the other camera's LiDAR / field poses through the pair
+
+            self.derived = refresh_derived(b, command)
 
 
 def calibrate(left: CameraViews, right: CameraViews | None = None, options: IntrinsicsOptions | None = None) -> IntrinsicsRun:
