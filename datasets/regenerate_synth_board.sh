@@ -6,4 +6,4 @@ set -e
 PYTHON="${PYTHON:-python}"
 rm -f datasets/synth_board_640/img_*.png datasets/synth_board_640/truth.json
 "$PYTHON" -m radarcal synth board datasets/synth_board_640 --board chessboard --cols 9 --rows 6 --square 0.025 \
-    --size 640x480 --model pinhole5 --views 6 --partial 1 --blank 1 --corrupt 1 --bad-view --noise 1.0 --blur 0.6 --seed 0
+    --image-size 640x480 --model pinhole5 --views 6 --partial 1 --blank 1 --corrupt 1 --bad-view --noise 1.0 --blur 0.6 --seed 0

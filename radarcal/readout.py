@@ -14,7 +14,7 @@ import numpy as np
 
 from radarcal import geometry
 
-__all__ = ["R_CAM_VIEW", "camera_in_lidar", "camera_on_field", "pose_change", "format_camera_in_lidar", "format_camera_on_field"]
+__all__ = ["R_CAM_VIEW", "camera_in_lidar", "camera_on_field", "pose_change", "format_camera_in_lidar", "format_camera_on_field", "bundle_summary", "entry_readout"]
 
 # columns: the viewing frame's axes (forward, left, up) in camera coordinates (x right, y down, z forward)
 R_CAM_VIEW = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
@@ -60,3 +60,32 @@ def format_camera_on_field(T_cam_field: np.ndarray) -> str:
     x, y, z = c["position_m"]
     return (f"camera at ({x:.3f}, {y:.3f}, {z:.3f}) m on the field, heading {c['heading_deg']:.2f} deg from +x, "
             f"{c['depression_deg']:.2f} deg below horizontal, roll {c['roll_deg']:+.2f} deg")
+
+
+def bundle_summary(b) -> dict:
+    """What ``radarcal bundle show`` prints: cameras, transforms (with xyz / rpy and the camera readout), sensors, field, runtime, sessions,
+    the cameras' cross-checks."""
+    cams = {
+        n: {"model": e.camera.model, "image_size": list(e.camera.image_size), "K": e.camera.K, "dist": e.camera.dist, "rms_px": e.rms_px, "sigma": e.sigma, "provenance": e.provenance.to_dict()}
+        for n, e in b.cameras.items()
+    }
+    tfs = {}
+    for n, e in b.transforms.items():
+        xyz_rpy = geometry.T_to_xyz_rpy_deg(e.T)
+        tfs[n] = {"target": e.target, "source": e.source, "T": e.T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "method": e.method, "residual": e.residual, "sigma": e.sigma,
+                  "readout": entry_readout(b, e)}
+    from radarcal.pnp.cross_check import bundle_cross_checks, format_agreement
+
+    checks = [{**vars(p), "text": format_agreement(p)} for p in bundle_cross_checks(b)]  # how well the cameras agree on the same field point
+    return {"path": str(b.path), "cameras": cams, "sensors": b.sensors, "transforms": tfs, "field": (b.field_model or {}).get("name"), "runtime": b.runtime, "sessions": b.sessions,
+            "cross_check": checks}
+
+
+def entry_readout(b, e) -> str | None:
+    """The camera's pose as people read it (see radarcal.readout) when the entry relates a camera to a LiDAR or the
+    field; None otherwise."""
+    cam, other = (e.target, e.source) if e.target in b.cameras else (e.source, e.target) if e.source in b.cameras else (None, None)
+    if cam is None or other in b.cameras:
+        return None
+    T_cam_other = b.T(cam, other)
+    return format_camera_on_field(T_cam_other) if other == "field" else format_camera_in_lidar(T_cam_other)

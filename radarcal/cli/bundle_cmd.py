@@ -9,53 +9,15 @@ import typer
 
 from radarcal import geometry
 from radarcal.bundle import Provenance, hash_inputs, load_bundle, load_or_create_bundle, save_bundle
-from radarcal.cli.common import JsonOpt, command_line, emit
-from radarcal.cli.outputs import check_outputs
+from radarcal.cli.common import JsonOpt, command_line, emit, parse_image_size
+from radarcal.io.outputs import check_outputs
 from radarcal.errors import InputError
 from radarcal.io import export_camera, import_camera, read_transform
 from radarcal.io.camera_formats import EXPORT_FORMATS
+from radarcal.readout import bundle_summary, entry_readout
 from radarcal.readout import format_camera_in_lidar as describe_T_cam_lidar
 
 app = typer.Typer(help="Inspect and edit the calibration bundle.", no_args_is_help=True)
-
-
-def _summary(b) -> dict:
-    cams = {
-        n: {"model": e.camera.model, "image_size": list(e.camera.image_size), "K": e.camera.K, "dist": e.camera.dist, "rms_px": e.rms_px, "sigma": e.sigma, "provenance": e.provenance.to_dict()}
-        for n, e in b.cameras.items()
-    }
-    tfs = {}
-    for n, e in b.transforms.items():
-        xyz_rpy = geometry.T_to_xyz_rpy_deg(e.T)
-        tfs[n] = {"target": e.target, "source": e.source, "T": e.T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "method": e.method, "residual": e.residual, "sigma": e.sigma,
-                  "readout": _readout(b, e)}
-    from radarcal.pnp.cross_check import bundle_cross_checks, format_agreement
-
-    checks = [{**vars(p), "text": format_agreement(p)} for p in bundle_cross_checks(b)]  # how well the cameras agree on the same field point
-    return {"path": str(b.path), "cameras": cams, "sensors": b.sensors, "transforms": tfs, "field": (b.field_model or {}).get("name"), "runtime": b.runtime, "sessions": b.sessions,
-            "cross_check": checks}
-
-
-def _readout(b, e) -> str | None:
-    """The camera's pose as people read it (see radarcal.readout) when the entry relates a camera to a LiDAR or the
-    field; None otherwise."""
-    from radarcal.readout import format_camera_in_lidar, format_camera_on_field
-
-    cam, other = (e.target, e.source) if e.target in b.cameras else (e.source, e.target) if e.source in b.cameras else (None, None)
-    if cam is None or other in b.cameras:
-        return None
-    T_cam_other = b.T(cam, other)
-    return format_camera_on_field(T_cam_other) if other == "field" else format_camera_in_lidar(T_cam_other)
-
-
-def parse_image_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().replace("*", "x").split("x"))
-    except ValueError:
-        raise InputError("--image-size", f"expected WIDTHxHEIGHT, e.g. 1280x1024, got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise InputError("--image-size", f"width and height must be positive, got {text!r}")
-    return w, h
 
 
 @app.command()
@@ -84,7 +46,7 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: JsonO
         for c in s["cross_check"]:
             typer.echo(f"  cross-check {c['text']}")
 
-    emit(_summary(b), as_json, human)
+    emit(bundle_summary(b), as_json, human)
 
 
 @app.command()
@@ -152,7 +114,7 @@ def export(
     as_json: JsonOpt = False,
 ) -> None:
     """Export one camera's intrinsics for another tool (--json: {camera, format, output, text} on stdout)."""
-    if fmt not in EXPORT_FORMATS:
+    if fmt not in EXPORT_FORMATS:  # checked here, not by an Enum: a bad value is one line `error: --format: ...`
         raise InputError("--format", f"unknown format {fmt!r} (choose {', '.join(EXPORT_FORMATS)})")
     b = load_bundle(bundle)
     text = export_camera(b.camera(camera), fmt, camera)
@@ -189,7 +151,7 @@ def set_transform(
     save_bundle(b, bundle)
     xyz_rpy = geometry.T_to_xyz_rpy_deg(T)
     summary = {"name": f"T_{target}_{source}", "target": target, "source": source, "T": T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "bundle": str(bundle)}
-    summary["readout"] = _readout(b, b.transforms[f"T_{target}_{source}"])
+    summary["readout"] = entry_readout(b, b.transforms[f"T_{target}_{source}"])
 
     def human(s: dict) -> None:
         typer.echo(f"set T_{target}_{source}: xyz=({xyz_rpy[0]:.4f}, {xyz_rpy[1]:.4f}, {xyz_rpy[2]:.4f}) m rpy=({xyz_rpy[3]:.3f}, {xyz_rpy[4]:.3f}, {xyz_rpy[5]:.3f}) deg -> {bundle}")

@@ -14,9 +14,10 @@ from typing import Annotated, Any, Callable, Optional
 import typer
 from rich.console import Console
 
+from radarcal.errors import InputError
 from radarcal.plain import to_plain
 
-__all__ = ["err_console", "emit", "progress", "BundleOpt", "ReplayBundleOpt", "JsonOpt", "CloudTopicOpt", "to_jsonable", "command_line"]
+__all__ = ["err_console", "emit", "progress", "BundleOpt", "ReplayBundleOpt", "JsonOpt", "CloudTopicOpt", "to_jsonable", "command_line", "parse_image_size"]
 
 # Progress bars and logs go to stderr so that --json output on stdout stays clean.
 err_console = Console(stderr=True)
@@ -26,7 +27,7 @@ err_console = Console(stderr=True)
 BundleOpt = Annotated[Path, typer.Option("--bundle", "-b", help="Calibration bundle (YAML); a calibration command creates it when missing and adds its result.")]
 ReplayBundleOpt = Annotated[Optional[Path], typer.Option("--bundle", "-b", help="Calibration bundle (default: calib.yaml inside --replay).")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable summary on stdout.")]
-CloudTopicOpt = Annotated[Optional[str], typer.Option("--cloud-topic", help="Bag topic of the clouds (default: every Livox CustomMsg / PointCloud2 topic; a --cloud scene bag with several needs one).")]
+CloudTopicOpt = Annotated[Optional[str], typer.Option("--cloud-topic", help="Bag topic of the clouds (default: every Livox CustomMsg / PointCloud2 topic; a scene bag with several needs one).")]
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -61,3 +62,14 @@ def command_line() -> str:
 
     argv = sys.argv[1:] if _current_argv is None else _current_argv
     return " ".join(["radarcal", *(shlex.quote(str(a)) for a in argv)])
+
+
+def parse_image_size(text: str, flag: str = "--image-size") -> tuple[int, int]:
+    """``WIDTHxHEIGHT`` (``1280x1024``, also ``1280*1024``) -> (width, height); ``InputError(flag, ...)`` otherwise."""
+    try:
+        w, h = (int(v) for v in text.lower().replace("*", "x").split("x"))
+    except ValueError:
+        raise InputError(flag, f"expected WIDTHxHEIGHT, e.g. 1280x1024, got {text!r}") from None
+    if w <= 0 or h <= 0:
+        raise InputError(flag, f"width and height must be positive, got {text!r}")
+    return w, h

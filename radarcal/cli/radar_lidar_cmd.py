@@ -9,6 +9,7 @@ import typer
 
 from radarcal.cli.common import (
     BundleOpt,
+    CloudTopicOpt,
     JsonOpt,
     command_line,
     emit,
@@ -39,6 +40,7 @@ def radar_lidar(
     voxel: float = typer.Option(0.1, "--voxel", help="Finest voxel size (m) of the LiDAR-LiDAR registration."),
     lidar_tol: str = typer.Option("0.2,0.02", "--lidar-tolerance", help="DEG,M: a LiDAR pose is stored only when 3 sigma of its worst rotation / translation is within these."),
     force: bool = typer.Option(False, "--force", help="Store even what the checks refuse (unobserved LiDAR direction, implausible move)."),
+    cloud_topic: CloudTopicOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Radar <-> radar, LiDAR <-> radar (corner reflectors) and LiDAR <-> LiDAR (GICP + reflectors) into one bundle."""
@@ -49,7 +51,7 @@ def radar_lidar(
         tol_deg, tol_m = (float(v) for v in lidar_tol.split(","))
     except ValueError:
         raise InputError("--lidar-tolerance", f"expected DEG,M (two numbers), got {lidar_tol!r}") from None
-    inp = read_radar_session(session)
+    inp = read_radar_session(session, cloud_topic)
     opts = RadarLidarOptions(model=model.value, gate=gate, outlier=outlier, joint=joint, lidar_method=lidar_method.value, voxel=voxel,
                              lidar_tolerance_deg=tol_deg, lidar_tolerance_m=tol_m)
     res = calibrate(inp, opts, progress=progress, log=lambda m: err_console.print(m, style="dim"))

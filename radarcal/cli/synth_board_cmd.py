@@ -3,77 +3,65 @@
 from __future__ import annotations
 
 import time
+from enum import Enum
 from pathlib import Path
 
 import typer
 
-from radarcal.cli.common import JsonOpt, command_line, emit, progress
-from radarcal.cli.outputs import check_output
+from radarcal.cli.board_options import BOARD, BoardKind, BoardKindOpt, BoardLayout, ColsOpt, DictOpt, LayoutOpt, MarkerOpt, RowsOpt, SquareOpt, board_spec
+from radarcal.cli.common import JsonOpt, command_line, emit, parse_image_size, progress
+from radarcal.io.outputs import check_output
 from radarcal.errors import InputError
 
-_MODELS = ("pinhole5", "pinhole8", "fisheye")
+
+class RenderModel(str, Enum):
+    pinhole5 = "pinhole5"
+    pinhole8 = "pinhole8"
+    fisheye = "fisheye"
 
 
-def _parse_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise InputError("--size", f"expected WIDTHxHEIGHT such as 1280x1024, got {text!r}") from None
-    if not (16 <= w <= 20000 and 16 <= h <= 20000):
-        raise InputError("--size", f"image size out of range: {w}x{h}")
-    return w, h
+class ViewCoverage(str, Enum):
+    full = "full"
+    poor = "poor"
 
 
 def synth_board(
     out_dir: Path = typer.Argument(..., help="Folder to write img_NNN.png and truth.json into (created if missing)."),
-    board: str = typer.Option("chessboard", "--board", help="chessboard | charuco"),
-    cols: int = typer.Option(9, "--cols", help="Chessboard: inner corners along x. ChArUco: squares along x."),
-    rows: int = typer.Option(6, "--rows", help="Chessboard: inner corners along y. ChArUco: squares along y."),
-    square: float = typer.Option(0.025, "--square", help="Square size in metres."),
-    marker: float = typer.Option(None, "--marker", help="ChArUco marker size in metres (default 0.75 x square)."),
-    dictionary: str = typer.Option("DICT_4X4_1000", "--dict", help="ChArUco ArUco dictionary (OpenCV name)."),
-    legacy: bool = typer.Option(False, "--legacy", help="ChArUco: OpenCV's legacy (pre-4.6) layout."),
-    size: str = typer.Option("1280x1024", "--size", help="Image size WIDTHxHEIGHT."),
-    model: str = typer.Option("pinhole5", "--model", help="pinhole5 | pinhole8 | fisheye (default camera for the size)."),
+    board: BoardKindOpt = BoardKind(BOARD.kind),
+    cols: ColsOpt = BOARD.cols,
+    rows: RowsOpt = BOARD.rows,
+    square: SquareOpt = BOARD.square,
+    marker: MarkerOpt = None,
+    dictionary: DictOpt = BOARD.dictionary,
+    layout: LayoutOpt = BoardLayout.auto,
+    image_size: str = typer.Option("1280x1024", "--image-size", help="Image size WIDTHxHEIGHT."),
+    model: RenderModel = typer.Option(RenderModel.pinhole5, "--model", help="Default camera of this model for the size (fisheye: equidistant)."),
     fov: float = typer.Option(190.0, "--fov", help="Fisheye: field of view (deg) of the image circle (spans the image height)."),
-    camera_file: Path = typer.Option(None, "--camera", help="Use these intrinsics instead (ROS/OpenCV/Kalibr/radarcal file)."),
-    views: int = typer.Option(25, "--views", help="Images showing the board (including partial and bad views)."),
-    partial: int = typer.Option(None, "--partial", help="How many of the views show the board partly outside the image (default 8 % of --views: 2 of 25)."),
-    blank: int = typer.Option(2, "--blank", help="Extra frames without a board."),
-    corrupt: int = typer.Option(1, "--corrupt", help="Extra truncated (unreadable) PNG files."),
-    noise: float = typer.Option(0.5, "--noise", help="Sensor noise sigma in grey levels (0..255 scale)."),
-    blur: float = typer.Option(0.6, "--blur", help="Optical blur sigma in px."),
-    vignetting: float = typer.Option(0.25, "--vignetting", help="Relative darkening at the image corners."),
-    supersample: int = typer.Option(4, "--supersample", help="Sub-samples per pixel axis at edges (>= S*S samples)."),
+    camera_file: Path = typer.Option(None, "--camera-file", help="Use these intrinsics instead (ROS/OpenCV/Kalibr/radarcal file)."),
+    views: int = typer.Option(25, "--views", min=0, help="Images showing the board (including partial and bad views)."),
+    partial: int = typer.Option(None, "--partial", min=0, help="How many of the views show the board partly outside the image (default 8 % of --views: 2 of 25)."),
+    blank: int = typer.Option(2, "--blank", min=0, help="Extra frames without a board."),
+    corrupt: int = typer.Option(1, "--corrupt", min=0, help="Extra truncated (unreadable) PNG files."),
+    noise: float = typer.Option(0.5, "--noise", min=0.0, help="Sensor noise sigma in grey levels (0..255 scale)."),
+    blur: float = typer.Option(0.6, "--blur", min=0.0, help="Optical blur sigma in px."),
+    vignetting: float = typer.Option(0.25, "--vignetting", min=0.0, max=0.999, help="Relative darkening at the image corners."),
+    supersample: int = typer.Option(4, "--supersample", min=1, help="Sub-samples per pixel axis at edges (>= S*S samples)."),
     seed: int = typer.Option(0, "--seed", help="Random seed (same seed -> bit-identical files)."),
-    coverage: str = typer.Option("full", "--coverage", help="full | poor (board kept in the upper-left of the image)."),
+    coverage: ViewCoverage = typer.Option(ViewCoverage.full, "--coverage", help="full, or poor (board kept in the upper-left of the image)."),
     bad_view: bool = typer.Option(False, "--bad-view", help="One view with a bowed (non-flat) pattern: an outlier."),
     bad_px: float = typer.Option(1.5, "--bad-px", help="Largest corner displacement of the bad view in px."),
-    stereo: float = typer.Option(0.0, "--stereo", help="Baseline in metres of a second camera (cam0/ and cam1/ folders); 0 = mono."),
-    video: float = typer.Option(0.0, "--video", help="Also write video.avi (MJPG) of this many seconds: the board moving through the views."),
-    fps: float = typer.Option(10.0, "--fps", help="Video frame rate."),
-    blurred: int = typer.Option(0, "--blurred", help="How many of the views get a motion streak (1-1.6 % of the image width)."),
+    stereo_baseline: float = typer.Option(0.0, "--stereo-baseline", min=0.0, max=10.0, help="Baseline (m) of a second camera (cam0/ and cam1/ folders); 0 = mono."),
+    video: float = typer.Option(0.0, "--video", min=0.0, max=600.0, help="Also write video.avi (MJPG) of this many seconds: the board moving through the views."),
+    fps: float = typer.Option(10.0, "--fps", min=1.0, max=120.0, help="Video frame rate."),
+    blurred: int = typer.Option(0, "--blurred", min=0, help="How many of the views get a motion streak (1-1.6 % of the image width)."),
     as_json: JsonOpt = False,
 ) -> None:
     """Render a calibration-target image set with known camera, poses and corner pixels."""
-    from radarcal.board import BoardSpec
     from radarcal.synth.board import RenderSettings, default_camera, default_stereo_camera, write_board_set
 
-    if board not in ("chessboard", "charuco"):
-        raise InputError("--board", f"expected chessboard or charuco, got {board!r}")
-    if model not in _MODELS:
-        raise InputError("--model", f"expected one of {', '.join(_MODELS)}, got {model!r}")
-    if coverage not in ("full", "poor"):
-        raise InputError("--coverage", f"expected full or poor, got {coverage!r}")
-    if partial is None:
-        partial = int(round(0.08 * views))
-    for name, value in (("--views", views), ("--partial", partial), ("--blank", blank), ("--corrupt", corrupt), ("--blurred", blurred)):
-        if value < 0:
-            raise InputError(name, f"must be >= 0, got {value}")
+    partial = int(round(0.08 * views)) if partial is None else partial
     if partial > views:
         raise InputError("--partial", f"{partial} partial views but only {views} views")
-    if noise < 0 or blur < 0 or supersample < 1 or not (0 <= vignetting < 1):
-        raise InputError("--noise/--blur/--supersample/--vignetting", "out of range")
     if camera_file is not None:
         from radarcal.io import import_camera
 
@@ -81,36 +69,25 @@ def synth_board(
     else:
         if not (60.0 <= fov <= 270.0):
             raise InputError("--fov", f"expected 60..270 degrees, got {fov:g}")
-        camera = default_camera(model, _parse_size(size), fisheye_fov_deg=fov)
-    if board == "charuco" and marker is None:
-        marker = 0.75 * square
-    try:
-        charuco = board == "charuco"
-        spec = BoardSpec(board, cols, rows, square, marker if charuco else None, dictionary, legacy if charuco else None)
-    except ValueError as e:
-        raise InputError("--board", str(e)) from None
+        w, h = parse_image_size(image_size)
+        if not (16 <= w <= 20000 and 16 <= h <= 20000):
+            raise InputError("--image-size", f"image size out of range: {w}x{h}")
+        camera = default_camera(model.value, (w, h), fisheye_fov_deg=fov)
+    spec = board_spec(board, cols, rows, square, marker, dictionary, layout)
     check_output(out_dir, what="image folder", folder=True)
     settings = RenderSettings(supersample=supersample, blur_sigma=blur, noise_sigma=noise, vignetting=vignetting, fisheye_fov_deg=fov)
-
-    if video < 0 or video > 600 or not (1 <= fps <= 120):
-        raise InputError("--video/--fps", f"expected 0..600 s at 1..120 fps, got {video:g} s at {fps:g} fps")
-    if stereo < 0 or stereo > 10:
-        raise InputError("--stereo", f"baseline must be in 0..10 m, got {stereo:g}")
-    rig = default_stereo_camera(camera, stereo) if stereo > 0 else None
-
-    def prog(it):
-        return progress(it, "rendering", total=len(it))
+    rig = default_stereo_camera(camera, stereo_baseline) if stereo_baseline > 0 else None
 
     # the command as typed, with the output folder replaced so that the same call elsewhere gives the same bytes
     command = " ".join("OUT_DIR" if a and not a.startswith("-") and Path(a) == Path(out_dir) else a for a in command_line().split(" "))
     t0 = time.perf_counter()
     try:
-        truth = write_board_set(out_dir, camera, spec, n_views=views, seed=seed, settings=settings, coverage=coverage,
+        truth = write_board_set(out_dir, camera, spec, n_views=views, seed=seed, settings=settings, coverage=coverage.value,
                                 n_partial=partial, n_blank=blank, n_corrupt=corrupt, bad_view=bad_view,
                                 bad_px=bad_px, n_blurred=blurred, stereo=rig, video_seconds=video, video_fps=fps,
-                                command=command, progress=prog)
+                                command=command, progress=lambda it: progress(it, "rendering", total=len(it)))
     except ValueError as e:
-        raise InputError("--board/--size", str(e)) from None
+        raise InputError("--board/--image-size", str(e)) from None
     except OSError as e:
         raise InputError(out_dir, f"cannot write: {e.strerror or e}") from None
     elapsed = time.perf_counter() - t0

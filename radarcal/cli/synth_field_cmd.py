@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import JsonOpt, command_line, emit, progress
-from radarcal.cli.outputs import replace_folder
+from radarcal.io.outputs import replace_folder
 from radarcal.errors import InputError
 
 __all__ = ["synth_field"]

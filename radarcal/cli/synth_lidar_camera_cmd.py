@@ -9,7 +9,7 @@ import typer
 
 from radarcal import geometry
 from radarcal.cli.common import JsonOpt, command_line, emit, err_console
-from radarcal.cli.outputs import check_output
+from radarcal.io.outputs import check_output
 from radarcal.errors import InputError
 
 __all__ = ["synth_lidar_camera"]

@@ -36,7 +36,7 @@ def synth_match(
         raise InputError("--scenario", f"expected random or occlusion, got {scenario!r}")
     if frames < 1 or not 0 <= robots <= 12 or people < 0 or lidar_points < 100:
         raise InputError("radarcal synth match", "--frames >= 1, --robots 0..12, --people >= 0, --lidar-points >= 100")
-    from radarcal.cli.outputs import check_output
+    from radarcal.io.outputs import check_output
 
     check_output(out, what="replay folder", folder=True)
     fm = load_field(field)

@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import JsonOpt, emit
-from radarcal.cli.outputs import check_output
+from radarcal.io.outputs import check_output
 from radarcal.errors import InputError
 
 

@@ -12,7 +12,7 @@ import glob
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -23,9 +23,10 @@ from radarcal.board import BoardSpec
 from radarcal.errors import InputError
 from radarcal.io.images import read_image
 from radarcal.intrinsics.detect import Detection, choose_charuco_layout, detect_board, diagnose_board_size
-from radarcal.intrinsics.select import novel_mask, view_descriptor
+from radarcal.intrinsics.select import DESCRIPTOR_NAMES, TARGET_RANGES, novel_mask, view_descriptor
 
-__all__ = ["ViewInput", "IMAGE_EXTS", "VIDEO_EXTS", "expand_sources", "detect_files", "sample_video", "decide_layout", "diagnose"]
+__all__ = ["ViewInput", "CameraViews", "IMAGE_EXTS", "VIDEO_EXTS", "expand_sources", "check_sources", "collect_camera", "detect_files", "sample_video", "decide_layout",
+           "diagnose", "LiveCoverage"]
 
 IMAGE_EXTS = {".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp"}
 VIDEO_EXTS = {".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg"}
@@ -36,6 +37,18 @@ class ViewInput:
     name: str  # file path, or "video.mp4#frame123"
     detection: Detection | None  # None when unreadable
     error: str = ""  # "unreadable: ..." when the file could not be read
+
+
+@dataclass
+class CameraViews:
+    """One camera's inputs: its name in the bundle, the views, the board (ChArUco layout decided), the layout
+    evidence (empty unless decided here) and the files read (for provenance and to name in errors)."""
+
+    name: str
+    views: list[ViewInput]
+    board: BoardSpec
+    layout_info: dict = field(default_factory=dict)
+    files: list[Path] = field(default_factory=list)
 
 
 def expand_sources(sources: Iterable[str]) -> tuple[list[Path], list[Path]]:
@@ -219,3 +232,46 @@ def views_from_corner_file(path: Path, board: BoardSpec, image_size: tuple[int, 
         det = Detection(ok, v.uv, v.ids, tuple(image_size), method="corner file", reason="" if ok else f"only {len(v.ids)} of {board.n_corners} corners in the file")
         views.append(ViewInput(v.name, det))
     return views
+
+
+def check_sources(sources: list[str]) -> None:
+    """Every SOURCE exists (:func:`expand_sources`), and a file named explicitly (not found in a folder or by a glob,
+    where unreadable frames are only rejected views) is a readable image or a video (``InputError`` naming it)."""
+    expand_sources(sources)
+    for s in sources:
+        p = Path(s)
+        if p.is_file() and p.suffix.lower() not in VIDEO_EXTS:
+            read_image(p, grayscale=True)
+
+
+def collect_camera(name: str, sources: list[str], board: BoardSpec, workers: int = 2, on_done: Callable[[int, int, ViewInput], None] | None = None,
+                   log: Callable[[str], None] = lambda msg: None) -> CameraViews:
+    """The views of one camera from SOURCE arguments: the ChArUco layout decided on a sample of the images, the
+    board detected in every image (``workers`` processes; ``on_done`` as in :func:`detect_files`) and in the sharp,
+    novel frames of every video."""
+    images, videos = expand_sources(sources)
+    board, layout_info = decide_layout(images, board)
+    views = detect_files(images, board, workers, on_done) if images else []
+    for v in videos:
+        log(f"sampling frames of {v} ...")
+        views += sample_video(v, board, workers=workers)
+    return CameraViews(name, views, board, layout_info, images + videos)
+
+
+class LiveCoverage:
+    """ROS-style live coverage while detecting: ``add(view)`` then :meth:`bars` (``X ███·· Y ...``) of the boards found so far."""
+
+    def __init__(self, board: BoardSpec):
+        self.board, self.descriptors = board, []
+
+    def add(self, v: ViewInput) -> None:
+        d = v.detection
+        if d is not None and d.ok:
+            self.descriptors.append(view_descriptor(d.uv, d.ids, self.board.grid_shape, d.image_size))
+
+    def bars(self, width: int = 5) -> str:
+        if not self.descriptors:
+            return ""
+        a = np.array(self.descriptors)
+        prog = np.minimum((a.max(axis=0) - a.min(axis=0)) / TARGET_RANGES, 1.0)
+        return " ".join(f"{nm} " + "█" * int(round(p * width)) + "·" * (width - int(round(p * width))) for nm, p in zip(DESCRIPTOR_NAMES, prog))

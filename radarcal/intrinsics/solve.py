@@ -295,6 +295,9 @@ def calibrate(
 
     Why one ~100-line function: it is one rejection loop whose state (per-corner inliers, used views, reasons, the
     warm start, the frozen flag) every round reads and updates; split, each piece would pass those six around.
+    Long (~100 lines) on purpose: one solve-reject-resolve loop whose state (views kept, corners kept, flags, the
+    last OpenCV solution) is shared by every step; the pieces it calls (σ, outlier tests, the model's flags) are
+    separate functions.
     """
     V = len(object_points)
     obj = [np.asarray(o, float).reshape(-1, 3) for o in object_points]

@@ -21,7 +21,6 @@ __all__ = ["Cloud", "read_cloud", "write_pcd", "CLOUD_SUFFIXES"]
 CLOUD_SUFFIXES = (".pcd", ".ply", ".bin", ".npy")
 
 _PCD_TYPES = {("F", 4): "<f4", ("F", 8): "<f8", ("U", 1): "u1", ("U", 2): "<u2", ("U", 4): "<u4", ("U", 8): "<u8", ("I", 1): "i1", ("I", 2): "<i2", ("I", 4): "<i4", ("I", 8): "<i8"}
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
 _INTENSITY_NAMES = ("intensity", "reflectivity", "i", "remission", "scalar_intensity")
 
 
@@ -155,38 +154,22 @@ def _pcd_binary_compressed(path: Path, body: bytes, names, dtypes, counts, n) ->
 
 
 def _read_ply(path: Path) -> Cloud:
+    from radarcal.io.ply import read_ply_header
+
     raw = path.read_bytes()
-    end = raw.find(b"end_header")
-    if not raw.startswith(b"ply") or end < 0:
-        raise InputError(path, "not a PLY file (no 'ply' magic / end_header)")
-    header = raw[:end].decode("ascii", errors="replace").splitlines()
-    body_start = raw.index(b"\n", end) + 1
-    fmt = None
-    props: list[tuple[str, str]] = []
-    n = 0
-    in_vertex = False
-    for line in header:
-        tok = line.split()
-        if not tok:
-            continue
-        if tok[0] == "format":
-            fmt = tok[1]
-        elif tok[0] == "element":
-            in_vertex = tok[1] == "vertex"
-            if in_vertex:
-                try:
-                    n = int(tok[2])
-                except (IndexError, ValueError):
-                    raise InputError(path, f"PLY bad element line {line!r}") from None
-            elif n == 0:
-                raise InputError(path, "PLY elements before 'vertex' are not supported")
-        elif tok[0] == "property" and in_vertex:
-            if tok[1] == "list":
-                raise InputError(path, "PLY vertex list properties are not supported")
-            props.append((tok[2], _PLY_TYPES.get(tok[1], "")))
-    if any(not t for _, t in props):
+    head = read_ply_header(raw, path)
+    fmt, body_start = head.fmt, head.body_at
+    vertex = head.element("vertex")
+    if vertex is None:
+        raise InputError(path, "PLY vertex has no 'x' property")
+    if head.elements[0] is not vertex and any(e.count for e in head.elements[: head.elements.index(vertex)]):
+        raise InputError(path, "PLY elements before 'vertex' are not supported")
+    if vertex.is_list:
+        raise InputError(path, "PLY vertex list properties are not supported")
+    if vertex.unknown_types():
         raise InputError(path, "PLY has an unknown property type")
-    names = [p for p, _ in props]
+    n = vertex.count
+    names = [p[-1] for p in vertex.props]
     for f in ("x", "y", "z"):
         if f not in names:
             raise InputError(path, f"PLY vertex has no '{f}' property")
@@ -200,8 +183,7 @@ def _read_ply(path: Path) -> Cloud:
             raise InputError(path, f"PLY ascii body has {table.shape[0]} rows, header says {n}")
         col = {nm: table[:, i] for i, nm in enumerate(names)}
     elif fmt in ("binary_little_endian", "binary_big_endian"):
-        endian = "<" if fmt == "binary_little_endian" else ">"
-        dt = np.dtype([(nm, endian + t) for nm, t in props])
+        dt = vertex.dtype(head.byteorder)
         if len(raw) - body_start < n * dt.itemsize:
             raise InputError(path, "PLY body truncated")
         arr = np.frombuffer(raw, dtype=dt, count=n, offset=body_start)

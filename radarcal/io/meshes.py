@@ -140,29 +140,16 @@ def _obj(data: bytes, path: Path) -> tuple[np.ndarray, np.ndarray]:
     return v, np.array(tris, np.int64).reshape(-1, 3)
 
 
-_PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4", "uint": "u4", "float": "f4", "double": "f8",
-              "int8": "i1", "uint8": "u1", "int16": "i2", "uint16": "u2", "int32": "i4", "uint32": "u4", "float32": "f4", "float64": "f8"}
-
-
 def _ply(data: bytes, path: Path) -> tuple[np.ndarray, np.ndarray]:
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0:
-        raise InputError(path, "not a mesh (PLY without 'ply' / 'end_header')")
-    header = data[:end].decode("ascii", errors="replace").splitlines()
-    body_at = data.index(b"\n", end) + 1
-    fmt, elements = None, []
-    for line in header:
-        tok = line.split()
-        if not tok:
-            continue
-        if tok[0] == "format":
-            fmt = tok[1]
-        elif tok[0] == "element":
-            elements.append([tok[1], int(tok[2]), []])
-        elif tok[0] == "property" and elements:
-            elements[-1][2].append(tok[1:])
+    from radarcal.io.ply import PLY_TYPES, read_ply_header
+
+    head = read_ply_header(data, path, "not a mesh (PLY without 'ply' / 'end_header')")
+    fmt, body_at = head.fmt, head.body_at
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise InputError(path, f"not a mesh (PLY format {fmt!r})")
+    if any(e.unknown_types() for e in head.elements):
+        raise InputError(path, "PLY has an unknown property type")
+    elements = [(e.name, e.count, e.props) for e in head.elements]
     verts = faces = None
     if fmt == "ascii":
         lines = data[body_at:].decode("ascii", errors="replace").split("\n")
@@ -185,18 +172,18 @@ def _ply(data: bytes, path: Path) -> tuple[np.ndarray, np.ndarray]:
                     tris.extend([f[0], f[k], f[k + 1]] for k in range(1, len(f) - 1))
                 faces = np.array(tris, np.int64).reshape(-1, 3)
     else:
-        bo = "<" if fmt == "binary_little_endian" else ">"
+        bo = head.byteorder
         off = body_at
         for name, count, props in elements:
             if all(p[0] != "list" for p in props):
-                dt = np.dtype([(p[-1], bo + _PLY_TYPES[p[0]]) for p in props])
+                dt = np.dtype([(p[-1], bo + PLY_TYPES[p[0]]) for p in props])
                 arr = np.frombuffer(data, dt, count=count, offset=off)
                 off += dt.itemsize * count
                 if name == "vertex":
                     verts = np.stack([arr["x"], arr["y"], arr["z"]], 1).astype(float)
             elif name == "face" and len(props) == 1:
                 _, ct, it = props[0][:3]
-                ct_dt, it_dt = np.dtype(bo + _PLY_TYPES[ct]), np.dtype(bo + _PLY_TYPES[it])
+                ct_dt, it_dt = np.dtype(bo + PLY_TYPES[ct]), np.dtype(bo + PLY_TYPES[it])
                 n0 = int(np.frombuffer(data, ct_dt, 1, off)[0]) if count else 3
                 # fast path: every face a triangle
                 dt = np.dtype([("n", ct_dt), ("i", it_dt, (n0,))])

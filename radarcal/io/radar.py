@@ -314,13 +314,17 @@ class SessionScene:
     centres: dict = field(default_factory=dict)  # lidar -> (K,3) reflector centres in that LiDAR's frame (m)
     boards: dict = field(default_factory=dict)  # lidar -> ((M,K,3) board circle centres, reflector offset behind the board (m))
 
+    cloud_topic: str | None = None  # bag topic of the clouds when a scene's cloud is a ROS bag with several
+
     def cloud(self, lidar: str):
-        """The :class:`radarcal.io.clouds.Cloud` of ``lidar`` in this scene (``InputError`` when missing or empty)."""
-        from radarcal.io import read_cloud
+        """The :class:`radarcal.io.clouds.Cloud` of ``lidar`` in this scene, read by
+        :func:`radarcal.io.cloud_sources.read_scene_cloud` (a cloud file, or a bag's clouds on ``cloud_topic`` merged);
+        ``InputError`` when missing or empty."""
+        from radarcal.io.cloud_sources import read_scene_cloud
 
         if lidar not in self.clouds:
             raise InputError(self.name, f"no cloud for LiDAR {lidar!r} in this scene")
-        c = read_cloud(self.clouds[lidar])
+        c = read_scene_cloud(self.clouds[lidar], self.cloud_topic)
         if len(c) == 0:
             raise InputError(self.clouds[lidar], "empty point cloud")
         return c
@@ -336,7 +340,8 @@ class RadarSessionInput:
     def input_files(self) -> list[Path]:
         out = [Path(self.rig.path)] if self.rig.path else []
         for s in self.scenes:
-            out += list(s.clouds.values())
+            for c in s.clouds.values():  # a ROS2 bag is a folder: its files
+                out += sorted(f for f in Path(c).iterdir() if f.is_file()) if Path(c).is_dir() else [Path(c)]
             if s.detections.path:
                 out += [Path(p) for p in s.detections.path.split(os.pathsep)]
         return [p for p in dict.fromkeys(out) if p.is_file()]
@@ -412,14 +417,25 @@ def read_opencalib_lidar2lidar(folder: Path) -> RadarSessionInput:
     return RadarSessionInput(folder, rig, [sc], "opencalib_lidar2lidar")
 
 
-def read_radar_session(folder: str | os.PathLike) -> RadarSessionInput:
-    """A session folder: ``rig.yaml`` + ``scenes/<k>/{<lidar>.pcd | reflectors.csv, radar.csv | <radar>.csv}`` (a
-    scene may hold ARS408 object lists ``<radar>.csv`` instead of ``radar.csv``, reflector centres ``reflectors.csv``
-    instead of the main LiDAR's cloud, and no radar file at all in a LiDAR-only rig); or, recognised by their files,
-    the TU Delft example folder (``lidar.csv`` + ``radar.csv``) and OpenCalib's lidar2lidar sample
-    (``initial_extrinsic.txt``)."""
+def _lidar_cloud_file(scene: Path, lidar: str) -> Path | None:
+    """The cloud of ``lidar`` in a scene folder: ``<lidar>.pcd|.ply|.bin|.npy``, a ROS1/ROS2 bag ``<lidar>.bag|.mcap|.db3``
+    or a ROS2 bag folder ``<lidar>/`` (with ``metadata.yaml``); None when there is none."""
+    from radarcal.io.cloud_sources import BAG_SUFFIXES
     from radarcal.io.clouds import CLOUD_SUFFIXES
 
+    for suf in (*CLOUD_SUFFIXES, *BAG_SUFFIXES):
+        if (scene / f"{lidar}{suf}").is_file():
+            return scene / f"{lidar}{suf}"
+    return scene / lidar if (scene / lidar / "metadata.yaml").is_file() else None
+
+
+def read_radar_session(folder: str | os.PathLike, cloud_topic: str | None = None) -> RadarSessionInput:
+    """A session folder: ``rig.yaml`` + ``scenes/<k>/{<lidar>.pcd | <lidar>.bag | reflectors.csv, radar.csv |
+    <radar>.csv}`` (a LiDAR's cloud may be a ROS1/ROS2 bag, its clouds on ``cloud_topic`` merged, see
+    :func:`_lidar_cloud_file`; a scene may hold ARS408 object lists ``<radar>.csv`` instead of ``radar.csv``, reflector
+    centres ``reflectors.csv`` instead of the main LiDAR's cloud, and no radar file at all in a LiDAR-only rig); or,
+    recognised by their files, the TU Delft example folder (``lidar.csv`` + ``radar.csv``) and OpenCalib's lidar2lidar
+    sample (``initial_extrinsic.txt``)."""
     root = Path(folder)
     if not root.is_dir():
         raise InputError(root, "session folder not found")
@@ -434,12 +450,7 @@ def read_radar_session(folder: str | os.PathLike) -> RadarSessionInput:
         raise InputError(sdir, "no scenes/ folder (one sub-folder per reflector placement)")
     scenes = []
     for d in sorted(p for p in sdir.iterdir() if p.is_dir()):
-        clouds = {}
-        for lid in rig.lidars:
-            for suf in CLOUD_SUFFIXES:
-                if (d / f"{lid}{suf}").is_file():
-                    clouds[lid] = d / f"{lid}{suf}"
-                    break
+        clouds = {lid: f for lid in rig.lidars if (f := _lidar_cloud_file(d, lid)) is not None}
         centres = read_reflector_centres(d / "reflectors.csv") if (d / "reflectors.csv").is_file() else {}
         unknown = sorted(set(centres) - set(rig.lidars))
         if unknown:
@@ -447,7 +458,7 @@ def read_radar_session(folder: str | os.PathLike) -> RadarSessionInput:
         if rig.main_lidar not in clouds and rig.main_lidar not in centres:
             raise InputError(d, f"no cloud for the main LiDAR {rig.main_lidar!r} ({rig.main_lidar}.pcd) and no reflectors.csv")
         for lid in rig.lidars:
-            if lid != rig.main_lidar and lid not in clouds and lid not in centres and any((e / f"{lid}{suf}").is_file() for e in sdir.iterdir() if e.is_dir() for suf in CLOUD_SUFFIXES):
+            if lid != rig.main_lidar and lid not in clouds and lid not in centres and any(_lidar_cloud_file(e, lid) for e in sdir.iterdir() if e.is_dir()):
                 raise InputError(d / f"{lid}.pcd", f"cloud of LiDAR {lid!r} missing in this scene (other scenes have one)")
         notes = []
         if (d / "radar.csv").is_file():
@@ -470,7 +481,7 @@ def read_radar_session(folder: str | os.PathLike) -> RadarSessionInput:
                 raise InputError(d, "no radar.csv (radar,x,y[,rcs,velocity]) and no <radar>.csv ARS408 lists")
             det = RadarDetections(np.concatenate([p.radar for p in parts]), np.concatenate([p.xy for p in parts]), np.concatenate([p.rcs for p in parts]),
                                   np.concatenate([p.velocity for p in parts]), os.pathsep.join(p.path for p in parts)) if parts else _empty_detections()
-        scenes.append(SessionScene(d.name, clouds, det, notes, centres))
+        scenes.append(SessionScene(d.name, clouds, det, notes, centres, cloud_topic=cloud_topic))
     if not scenes:
         raise InputError(sdir, "no scene folders")
     return RadarSessionInput(root, rig, scenes)

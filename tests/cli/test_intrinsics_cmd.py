@@ -97,8 +97,9 @@ def test_wrong_board_size_is_an_input_error_with_a_hint(shared, tmp_path, capsys
 def test_missing_source_and_bad_options(tmp_path, capsys):
     code, _out, err = _run(capsys, ["intrinsics", str(tmp_path / "nope*.png"), *CHESS_OPTS, "--bundle", str(tmp_path / "b.yaml")])
     assert code == 2 and "no such file" in err
-    code, _out, err = _run(capsys, ["intrinsics", str(tmp_path), "--board", "charuco", "--cols", "8", "--rows", "8", "--square", "0.02", "--bundle", str(tmp_path / "b.yaml")])
-    assert code == 2 and "marker" in err
+    code, _out, err = _run(capsys, ["intrinsics", str(tmp_path), "--board", "charuco", "--cols", "8", "--rows", "8", "--square", "0.02", "--marker", "0.02",
+                                   "--bundle", str(tmp_path / "b.yaml")])  # fmt: skip
+    assert code == 2 and "marker" in err  # a marker as large as the square (without --marker: 0.75 x --square)
     code, _out, err = _run(capsys, ["intrinsics", str(tmp_path), *CHESS_OPTS, "--model", "poly", "--bundle", str(tmp_path / "b.yaml")])
     assert code == 2 and "--model" in err
 

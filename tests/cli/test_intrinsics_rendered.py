@@ -28,7 +28,7 @@ def _intrinsics(capsys, *args):
 @pytest.fixture(scope="module")
 def chess_set(tmp_path_factory):
     out = tmp_path_factory.mktemp("chess640")
-    _synth(out, "--size", "640x480", "--views", "14", "--bad-view", "--blurred", "1", "--blank", "2", "--corrupt", "1", "--seed", "2")
+    _synth(out, "--image-size", "640x480", "--views", "14", "--bad-view", "--blurred", "1", "--blank", "2", "--corrupt", "1", "--seed", "2")
     return out
 
 
@@ -73,7 +73,7 @@ def test_rendered_wrong_size_named(chess_set, tmp_path, capsys):
 
 def test_rendered_blank_only_folder(tmp_path, capsys):
     out = tmp_path / "blank"
-    _synth(out, "--size", "320x240", "--views", "3", "--partial", "0", "--blank", "3", "--corrupt", "1", "--seed", "4")
+    _synth(out, "--image-size", "320x240", "--views", "3", "--partial", "0", "--blank", "3", "--corrupt", "1", "--seed", "4")
     t = json.loads((out / "truth.json").read_text())
     for v in t["views"]:  # keep only the blank frames and the corrupt file
         if v["kind"] not in ("blank", "corrupt"):
@@ -85,7 +85,7 @@ def test_rendered_blank_only_folder(tmp_path, capsys):
 
 def test_rendered_charuco_legacy_auto(tmp_path, capsys):
     out = tmp_path / "charuco"
-    _synth(out, "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--dict", "DICT_4X4_1000", "--legacy", "--size", "640x480", "--views", "10", "--blank", "0", "--corrupt", "0", "--seed", "3")
+    _synth(out, "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--dict", "DICT_4X4_1000", "--layout", "legacy", "--image-size", "640x480", "--views", "10", "--blank", "0", "--corrupt", "0", "--seed", "3")
     code, o, err = _intrinsics(capsys, str(out), "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--bundle", str(tmp_path / "b.yaml"), "--json", "--no-crossval")
     assert code == 0, err
     s = json.loads(o)["cameras"][0]
@@ -100,7 +100,7 @@ def test_rendered_charuco_legacy_auto(tmp_path, capsys):
 
 def test_rendered_stereo_recovers_T(tmp_path, capsys):
     out = tmp_path / "stereo"
-    _synth(out, "--size", "640x480", "--views", "10", "--partial", "0", "--blank", "0", "--corrupt", "0", "--stereo", "0.12", "--seed", "5")
+    _synth(out, "--image-size", "640x480", "--views", "10", "--partial", "0", "--blank", "0", "--corrupt", "0", "--stereo-baseline", "0.12", "--seed", "5")
     code, o, err = _intrinsics(capsys, str(out / "cam0"), "--cols", "9", "--rows", "6", "--square", "0.025", "--right", str(out / "cam1"), "--bundle", str(tmp_path / "b.yaml"), "--json", "--no-crossval")
     assert code == 0, err
     t = json.loads((out / "truth.json").read_text())
@@ -116,7 +116,7 @@ def test_rendered_stereo_recovers_T(tmp_path, capsys):
 def test_rendered_1280x1024_accuracy(tmp_path, capsys):
     """25 rendered 1280x1024 views + partial/bad/blurred/blank/corrupt: |Δfx|,|Δfy|,|Δcx|,|Δcy| < 0.3 px."""
     out = tmp_path / "big"
-    _synth(out, "--size", "1280x1024", "--views", "25", "--bad-view", "--blurred", "1", "--seed", "11")
+    _synth(out, "--image-size", "1280x1024", "--views", "25", "--bad-view", "--blurred", "1", "--seed", "11")
     code, o, err = _intrinsics(capsys, str(out), "--cols", "9", "--rows", "6", "--square", "0.025", "--bundle", str(tmp_path / "b.yaml"), "--json")
     assert code == 0, err
     s = json.loads(o)["cameras"][0]
@@ -133,7 +133,7 @@ def test_rendered_fisheye_auto_model(tmp_path, capsys):
     """A 190° equidistant lens (OpenCV's own fisheye start diverges here): --model auto picks fisheye and
     recovers the truth; pinhole5 is rejected by its RMS."""
     out = tmp_path / "fish"
-    _synth(out, "--model", "fisheye", "--size", "640x512", "--views", "12", "--partial", "0", "--blank", "0", "--corrupt", "0", "--seed", "7")
+    _synth(out, "--model", "fisheye", "--image-size", "640x512", "--views", "12", "--partial", "0", "--blank", "0", "--corrupt", "0", "--seed", "7")
     code, o, err = _intrinsics(capsys, str(out), "--cols", "9", "--rows", "6", "--square", "0.025", "--model", "auto", "--bundle", str(tmp_path / "b.yaml"), "--json")
     assert code == 0, err
     s = json.loads(o)["cameras"][0]
@@ -149,7 +149,7 @@ def test_rendered_fisheye_auto_model(tmp_path, capsys):
 
 def test_rendered_charuco_stereo_pairs_by_ids(tmp_path, capsys):
     out = tmp_path / "cst"
-    _synth(out, "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--dict", "DICT_4X4_1000", "--size", "640x480", "--views", "9", "--partial", "1", "--blank", "0", "--corrupt", "0", "--stereo", "0.1", "--seed", "6")
+    _synth(out, "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--dict", "DICT_4X4_1000", "--image-size", "640x480", "--views", "9", "--partial", "1", "--blank", "0", "--corrupt", "0", "--stereo-baseline", "0.1", "--seed", "6")
     code, o, err = _intrinsics(capsys, str(out / "cam0"), "--board", "charuco", "--cols", "8", "--rows", "6", "--square", "0.03", "--marker", "0.022", "--right", str(out / "cam1"), "--bundle", str(tmp_path / "b.yaml"), "--json", "--no-crossval")
     assert code == 0, err
     t = json.loads((out / "truth.json").read_text())
@@ -164,7 +164,7 @@ def test_rendered_video_frames_sampled_sharp_and_novel(tmp_path, capsys):
     """`synth board --video`: the board moves between 10 key poses (motion-blurred in between, median ≈ 12 px per
     exposure). The kept frames are sharp, one per pose, and give the true intrinsics."""
     out = tmp_path / "vid"
-    _synth(out, "--size", "640x480", "--views", "10", "--partial", "0", "--blank", "0", "--corrupt", "0", "--video", "6", "--seed", "12")
+    _synth(out, "--image-size", "640x480", "--views", "10", "--partial", "0", "--blank", "0", "--corrupt", "0", "--video", "6", "--seed", "12")
     code, o, err = _intrinsics(capsys, str(out / "video.avi"), "--cols", "9", "--rows", "6", "--square", "0.025", "--bundle", str(tmp_path / "b.yaml"), "--json", "--no-crossval")
     assert code == 0, err
     s = json.loads(o)["cameras"][0]

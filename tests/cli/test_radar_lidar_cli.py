@@ -202,3 +202,58 @@ def test_reflector_centres_session_tudelft_style(tmp_path, capsys):
         T, T_true = np.array(d["T_main_radar"]), np.array(ses.truth["T_main_sensor"][r])
         yaw = np.degrees(np.arctan2((T_true[:3, :3].T @ T[:3, :3])[1, 0], (T_true[:3, :3].T @ T[:3, :3])[0, 0]))
         assert abs(yaw) < 1e-4 and np.linalg.norm(T[:2, 3] - T_true[:2, 3]) < 1e-4, (r, yaw, T[:3, 3], T_true[:3, 3])
+
+
+def _scenes_as_bags(ses):
+    """Every scene's LiDAR clouds recorded instead as bags written by rosbags: the main LiDAR as a ROS1 bag of four
+    Livox CustomMsg clouds, the second as a ROS2 (mcap) bag folder of three PointCloud2 clouds plus an IMU-less
+    decoy cloud topic, so that ``--cloud-topic`` must choose. Reflectivity / intensity constant (the PCDs carry none)."""
+    from bag_writer import pc2_msg, typestore, write_ros1_livox_bag
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores
+
+    from radarcal.io import read_cloud
+
+    ts = typestore(Stores.ROS2_HUMBLE, "livox_ros_driver2")
+    for d in sorted((ses / "scenes").iterdir()):
+        pts = read_cloud(d / "lidar_front.pcd").points
+        parts = np.array_split(np.arange(len(pts)), 4)
+        write_ros1_livox_bag(d / "lidar_front.bag", [pts[i] for i in parts], [1700000000.0 + 0.1 * k for k in range(4)],
+                             refl=[np.full(len(i), 40) for i in parts])
+        (d / "lidar_front.pcd").unlink()
+        pts = read_cloud(d / "lidar_left.pcd").points
+        with Writer(d / "lidar_left", version=9, storage_plugin=StoragePlugin.MCAP) as w:
+            a = w.add_connection("/livox/lidar", "sensor_msgs/msg/PointCloud2", typestore=ts)
+            b = w.add_connection("/decoy", "sensor_msgs/msg/PointCloud2", typestore=ts)
+            for k, i in enumerate(np.array_split(np.arange(len(pts)), 3)):
+                w.write(a, (k + 1) * 10**8, ts.serialize_cdr(pc2_msg(ts, pts[i], 0.1 * (k + 1)), "sensor_msgs/msg/PointCloud2"))
+            w.write(b, 10**9, ts.serialize_cdr(pc2_msg(ts, pts[:10] + 50.0, 1.0), "sensor_msgs/msg/PointCloud2"))
+        (d / "lidar_left.pcd").unlink()
+
+
+def test_radar_lidar_reads_the_clouds_from_ros_bags(tmp_path, capsys):
+    """The session of the first test with its clouds in ROS1 / ROS2 bags: the same truth figures; the bag with two
+    cloud topics needs --cloud-topic (one line, exit 2, nothing written); the bag files are in the provenance."""
+    ses = tmp_path / "session"
+    assert main(["synth", "radar", str(ses), "--seed", "5", "--sigma", "0.01", "--frames", "20", "--ghosts", "0.5", "--p-miss", "0.1",
+                 "--extra-lidars", "1", "--scenes", "2"]) == 0
+    _scenes_as_bags(ses)
+    bundle = tmp_path / "b.yaml"
+    capsys.readouterr()
+    assert main(["radar-lidar", str(ses), "--bundle", str(bundle)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "lidar_left: several cloud topics (/decoy, /livox/lidar): choose one with --cloud-topic" in err, err
+    assert len(err.strip().splitlines()) == 1 and not bundle.exists()
+    assert main(["radar-lidar", str(ses), "--bundle", str(bundle), "--cloud-topic", "/livox/lidar", "--json"]) == 0
+    capsys.readouterr()
+    truth = json.loads((ses / "truth.json").read_text())
+    b = load_bundle(bundle)
+    for r in ("radar_left", "radar_middle", "radar_right"):
+        deg, m = geometry.pose_error(b.transforms[f"T_lidar_front_{r}"].T, np.array(truth["T_main_sensor"][r]))
+        assert deg < 0.3 and m < 0.01, (r, deg, m)
+    deg, m = geometry.pose_error(b.transforms["T_lidar_front_lidar_left"].T, np.array(truth["T_main_sensor"]["lidar_left"]))
+    assert deg < 0.1 and m < 0.01
+    from radarcal.io.radar import read_radar_session
+
+    files = read_radar_session(ses, "/livox/lidar").input_files()
+    assert any(f.name == "lidar_front.bag" for f in files) and any(f.suffix == ".mcap" for f in files)

@@ -298,16 +298,16 @@ def test_cli_writes_a_set_and_rejects_bad_input(tmp_path, capsys):
 
     out = tmp_path / "set"
     code = main(["synth", "board", str(out), "--board", "charuco", "--cols", "5", "--rows", "4", "--square", "0.04",
-                 "--marker", "0.03", "--legacy", "--size", "640x480", "--views", "2", "--partial", "0", "--blank", "1",
+                 "--marker", "0.03", "--layout", "legacy", "--image-size", "640x480", "--views", "2", "--partial", "0", "--blank", "1",
                  "--corrupt", "0", "--json"])
     assert code == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["n_files"] == 3 and summary["board"]["legacy"] is True
     truth = json.loads((out / "truth.json").read_text())
     assert truth["board"]["type"] == "charuco" and len(truth["views"]) == 3
-    assert main(["synth", "board", str(tmp_path / "x"), "--size", "big"]) == 2
+    assert main(["synth", "board", str(tmp_path / "x"), "--image-size", "big"]) == 2
     assert main(["synth", "board", str(tmp_path / "x"), "--board", "charuco", "--marker", "0.05"]) == 2
-    assert main(["synth", "board", str(tmp_path / "x"), "--cols", "30", "--rows", "20", "--size", "320x240"]) == 2
+    assert main(["synth", "board", str(tmp_path / "x"), "--cols", "30", "--rows", "20", "--image-size", "320x240"]) == 2
     assert "error: --" in capsys.readouterr().err
 
 

@@ -58,6 +58,8 @@ def robust_match_sets(
     smaller mean squared residual), refined in closed form on them and re-matched. With ``init``, hypotheses are limited
     to rotations within ``max_rotation_from_init`` of it. More than ``max_hypotheses`` pair hypotheses are subsampled
     (seeded, so the result is deterministic). Returns (pairs per scene, pose) or (empties, None).
+    Long (~90 lines): one RANSAC loop over pair hypotheses with its scoring and the final re-match inline (they share
+    the candidate sets and the best score); pulled apart, each piece would take and return all of them.
     """
     S = [np.asarray(x, float).reshape(-1, 2) for x in srcs]
     D = [np.asarray(x, float).reshape(-1, 2) for x in dsts]

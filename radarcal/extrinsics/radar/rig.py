@@ -156,6 +156,10 @@ def calibrate_rig(
     centres' z dropped in the LiDAR frame, no slant). ``mount_heights``: radar scanning-plane height above the ground
     (m); a radar without one gets it estimated (slant model). ``init_T_lidar_radar``: optional nominal poses (used to
     pick correspondences; without them RANSAC over pairs decides).
+    Long (~200 lines) on purpose: the patent's steps in order (ground frame, radar<->radar, A/B/C filter,
+    LiDAR<->reference radar, per-radar slant fit with outliers, joint refinement, results), each a commented block
+    over the same few arrays (``lidar_G``, ``pose_G``, ``heights``, ``notes``); the numeric work is in the functions
+    they call. Reading it top to bottom is reading the method.
     """
     notes: list[str] = []
     if not scenes:
@@ -370,7 +374,8 @@ def _fit_kw(slant: bool, known_h, h_guess) -> dict:
 
 def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate, z_nominal, in_region):
     """All radar poses at once. Observations: every radar's matched LiDAR reflectors (kept ones), plus detections of
-    reflectors that two or more radars see but the LiDAR does not (free 2D points at the median reflector height)."""
+    reflectors that two or more radars see but the LiDAR does not (free 2D points at the median reflector height). Long (~115 lines): the parameter packing, the residual function over
+    all radars and free points, and the unpacking share one layout; split, the layout would be restated in each piece."""
     names = list(fits)
     # free points: per scene, cluster unmatched detections (in G under current poses) seen by >= 2 radars
     free_obs = []  # (radar index, free point index, measurement)
