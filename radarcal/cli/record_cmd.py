@@ -9,16 +9,9 @@ import typer
 
 from radarcal.cli.common import JsonOpt, emit
 from radarcal.errors import InputError
+from radarcal.io.source_specs import split_named
 
-__all__ = ["record", "split_named"]
-
-
-def split_named(spec: str, default: str) -> tuple[str, str]:
-    """``NAME=SPEC`` -> (NAME, SPEC); a bare SPEC gets ``default``."""
-    head, sep, tail = spec.partition("=")
-    if sep and "://" not in head and "/" not in head and head:
-        return head, tail
-    return default, spec
+__all__ = ["record"]
 
 
 def record(

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Callable
 
 from radarcal.errors import InputError
+from radarcal.io.source_specs import split_named
 
 __all__ = ["RunOptions", "RunPlan", "validate_options", "plan_run", "execute", "open_detector", "live_lidars", "health_text"]
 
@@ -300,7 +301,7 @@ def _live_clouds(plan: RunPlan, recorder):
     o = plan.opts
     if not plan.has_clouds:
         return None
-    if any(c.partition("=")[2 if "=" in c.split("://")[0] else 0].startswith("livox") for c in o.clouds):
+    if any(split_named(c, "")[1].startswith("livox") for c in o.clouds):
         return live_lidars(plan.bundle, o.clouds, plan.lidar, tap=recorder.lidar if recorder else None)
     from radarcal.runtime.sources import open_clouds
 
@@ -376,7 +377,7 @@ class _NoBoxes:
 
 def live_lidars(b, specs: list[str], primary: str | None, tap=None):
     """Start every live LiDAR (``[NAME=]livox://IP``); clouds move into the frame of ``primary`` through the bundle."""
-    from radarcal.cli.record_cmd import split_named
+
     from radarcal.io.livox import open_livox
     from radarcal.runtime.replay import LiveClouds
 

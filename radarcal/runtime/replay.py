@@ -193,7 +193,7 @@ def paced_video(path: str) -> Iterator[CameraFrame]:
 
 
 def start_recording(out, bundle, camera: str, video: str | None, clouds: list[str]):
-    from radarcal.cli.record_cmd import split_named
+    from radarcal.io.source_specs import split_named
     from radarcal.io.recording import Recorder
 
     sensors = [{"name": split_named(c, f"lidar{i}")[0], "kind": "lidar", "url": split_named(c, f"lidar{i}")[1]} for i, c in enumerate(clouds) if "://" in c]
