@@ -43,6 +43,7 @@ class RunOptions:
     detect_ahead: bool = True
     conf: float = 0.25
     threads: int = 0
+    detect_workers: int = 1  # frames detected at once (DetectAhead workers; 2 with --threads 1 is fastest on 2 cores)
     detections: Path | None = None
     serial: str | None = None
     out: Path | None = None
@@ -367,7 +368,7 @@ def open_detector(o: RunOptions, log: Callable[[str], None]):
                        what="armour model") if o.armour else None  # fmt: skip
     num = NumberClassifier(o.number, names_of(o.number_names), o.number_names, threads=o.threads, providers=o.providers) if o.number else None
     log(f"detector {robot.describe()}" + (f"; armour {arm.describe()}" if arm else "") + (f"; number {num.path.name}" if num else ""))
-    return DetectAhead(Recogniser(robot, arm, num))
+    return DetectAhead(Recogniser(robot, arm, num), workers=o.detect_workers)
 
 
 class _NoBoxes:

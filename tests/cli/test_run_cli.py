@@ -54,7 +54,8 @@ def test_run_separate_sources_and_status_line(sample, tmp_path, capsys):
     assert len(lines) == 20 and lines[1]["frame"] == "000010.jpg" and any(r["source"] in ("depth", "lidar") for ln in lines for r in ln["robots"])
 
 
-def test_run_with_generated_onnx_detector(sample, tmp_path, capsys):
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_run_with_generated_onnx_detector(sample, tmp_path, capsys, workers):
     from radarcal.runtime.synthetic_onnx import make_fixed_boxes_model
 
     # a model that "detects" blue_1 where truth.jsonl puts it in frame 0 (1280x1024 -> 640 letterbox: x0.5, +64 y)
@@ -66,7 +67,8 @@ def test_run_with_generated_onnx_detector(sample, tmp_path, capsys):
     model = tmp_path / "m.onnx"
     make_fixed_boxes_model(model, np.stack([row, np.zeros(7, np.float32)]), 640, ["blue_1", "red_3"])
     # the box path locates from the first box (LiDAR-first, the default, waits for three consistent frames)
-    code = main(["run", "--replay", str(sample), "--detector", str(model), "--max-frames", "3", "--out", str(tmp_path / "o.jsonl"), "--json", "--localise", "box"])
+    code = main(["run", "--replay", str(sample), "--detector", str(model), "--max-frames", "3", "--out", str(tmp_path / "o.jsonl"), "--json", "--localise", "box",
+                 "--detect-workers", workers, "--threads", "1"])  # fmt: skip
     assert code == 0
     first = json.loads((tmp_path / "o.jsonl").read_text().splitlines()[0])
     assert [r["label"] for r in first["robots"]] == ["blue_1"]
