@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from radarcal.runtime import referee_season as _season
+
 __all__ = [
     "SOF",
     "HEADER_LEN",
@@ -231,23 +233,18 @@ def robot_id(team: str, number: int) -> int:
 
 
 # --- 0x0305 minimap --------------------------------------------------------------------------------------------------
-#: robot numbers in the slot order of the all-robots layouts
-MAP_SLOTS = {2024: (1, 2, 3, 4, 5, 7), 2026: (1, 2, 3, 4, 6, 7)}
+#: robot numbers in the slot order of the all-robots layouts (from the season table)
+MAP_SLOTS = {2024: _season.MAP_LAYOUTS["all24"][0], 2026: _season.MAP_LAYOUTS["all48"][0]}
 
 
-KNOWN_SEASONS = (2021, 2022, 2023, 2024, 2025, 2026)  # the seasons whose 0x0305 layout and rate limits are known
+KNOWN_SEASONS = _season.KNOWN_SEASONS  # the seasons whose 0x0305 layout and rate limits are known
 
 
 def map_layout(season: int) -> str:
-    """``"single14"`` (<= 2022), ``"single10"`` (2023), ``"all24"`` (2024-2025), ``"all48"`` (>= 2026)."""
-    season = int(season)
-    if season <= 2022:
-        return "single14"
-    if season == 2023:
-        return "single10"
-    if season <= 2025:
-        return "all24"
-    return "all48"
+    """``"single14"`` (<= 2022), ``"single10"`` (2023), ``"all24"`` (2024-2025), ``"all48"`` (>= 2026): read from
+    :mod:`radarcal.runtime.referee_season` (seasons outside the table take the nearest known one)."""
+    season = min(max(int(season), KNOWN_SEASONS[0]), KNOWN_SEASONS[-1])
+    return _season.rules(season).map_layout.value
 
 
 def _cm(xy) -> tuple[int, int]:
