@@ -6,6 +6,7 @@ from pathlib import Path
 
 import typer
 
+from radarcal.cli.marking_options import DvAtOpt, DvEnemiesInHalfOpt, DvOnDartOpt, DvOnKeyOpt, GuessOpt, RosterOpt, marking_overrides
 from radarcal.cli.common import BundleOpt, CloudTopicOpt, JsonOpt, ReplayBundleOpt, command_line, emit, err_console
 from radarcal.cli.outputs import check_outputs
 from radarcal.cli.run_checks import HERO_MAX_SPREAD_M, check_serial_port, check_season, hero_spread_problem, run_warnings
@@ -53,6 +54,12 @@ def run(
     ui: str = typer.Option(None, "--ui", help="Serve the live operator console on [HOST:]PORT (default host 127.0.0.1; docs/console.md)."),
     speed: float = typer.Option(None, "--speed", help="Replay at this multiple of real time (default: 1 with --ui, else as fast as possible; 0 = unpaced)."),
     field_pose: str = typer.Option("auto", "--field-pose", help="Camera field pose: chain (lidar-field T_field_lidar · T_lidar_cam), pnp (field-pnp), auto (chain when lidar-field converged, else pnp)."),
+    roster: RosterOpt = True,
+    guess: GuessOpt = True,
+    dv_at: DvAtOpt = None,
+    dv_enemies_in_half: DvEnemiesInHalfOpt = None,
+    dv_on_key: DvOnKeyOpt = None,
+    dv_on_dart: DvOnDartOpt = False,
     as_json: JsonOpt = False,
 ) -> None:
     """Localise robots on the field from camera + LiDAR, track them, draw the minimap, talk to the referee system."""
@@ -110,7 +117,8 @@ def run(
         timing = {"cloud_sweep_s": float(meta["cloud_sweep_s"]), "cloud_latency_s": float(meta.get("cloud_latency_s", 0.0))}
     elif str(meta.get("generator", "")).startswith("radarcal synth field"):  # robots frozen at the cloud stamp
         timing = {"cloud_sweep_s": 0.0, "cloud_latency_s": 0.0}
-    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy, localise="lidar" if lidar_only else localise, **timing)
+    marking_cfg = marking_overrides(roster, guess, dv_at, dv_enemies_in_half, dv_on_key, dv_on_dart)
+    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy, localise="lidar" if lidar_only else localise, **timing, **marking_cfg)
     check_season(cfg.season, "--season" if season is not None else f"{bundle}: runtime.referee_season")
     check_outputs(bundle, [("track file", out), ("minimap", minimap)], b, inputs=[detections, rep.detections if rep else None, rep.truth if rep else None])
     if serial:
@@ -177,6 +185,9 @@ def run(
 
             factory = tapped_serial(recorder)
         link = SerialLink(serial, season=cfg.season, serial_factory=factory).start()
+    from radarcal.runtime.marking import Marking
+
+    marking = Marking(cfg, field_length_m=pipe.field_model.size[0] if pipe.field_model is not None else 28.0) if link is not None else None
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     pairs = merge_by_time(frames, cloud_src, offset) if frames is not None else cloud_frames_as_pairs(cloud_src, offset if isinstance(offset, float) else 0.0)
     on_frame, console = evaluator, None
@@ -187,6 +198,8 @@ def run(
         if ui is not None:
             console = start_console(ui, pipe, b, cam_name, lidar_name if has_clouds else None, {"camera": cam_name, "team": cfg.team, "hero_range_offset_m": cfg.hero_range_offset_m})
             pairs, detect, on_frame = console.observe_pairs(pairs), console.observe_detect(detect), chain_callbacks(evaluator, console.on_frame)
+            if marking is not None:
+                console.on_action("double_vulnerability", marking.operator_dv)
             for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None))):
                 if callable(src):
                     console.add_health(name, src)
@@ -198,7 +211,7 @@ def run(
             return h
 
         extra = (lambda: health_text(sensors_health())) if hasattr(cloud_src, "sensors_health") or camera_health else None
-        summary = run_loop(pipe, pairs, detect, out, minimap, link, status=not quiet and not as_json, max_frames=max_frames, on_frame=on_frame, status_extra=extra)
+        summary = run_loop(pipe, pairs, detect, out, minimap, link, status=not quiet and not as_json, max_frames=max_frames, on_frame=on_frame, status_extra=extra, marking=marking)
         if extra is not None:
             summary["health"] = sensors_health()
     finally:
