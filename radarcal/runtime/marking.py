@@ -147,12 +147,14 @@ class GuessStats:
 class Guesser:
     """Guesses for empty enemy slots (see the module text). ``vmax_mps`` bounds where a robot can be by now."""
 
-    def __init__(self, progress: ProgressView, ban_s: float = 8.0, pause_s: float = 3.0, pause_max_s: float = 60.0, margin_s: float = 2.2,
-                 blind_s: float = 5.0, vmax_mps: float = 3.0, reach_margin_m: float = 1.0, max_reach_m: float = 12.0):  # fmt: skip
+    def __init__(self, progress: ProgressView, ban_s: float = 8.0, pause_s: float = 5.0, pause_max_s: float = 60.0, margin_s: float = 2.5,
+                 latency_s: float = 0.3, blind_s: float = 5.0, bits_trial_max_s: float = 8.0, vmax_mps: float = 3.0, reach_margin_m: float = 1.0, max_reach_m: float = 6.0):  # fmt: skip
         self.progress = progress
         self.ban_s, self.pause_s, self.pause_max_s = float(ban_s), float(pause_s), float(pause_max_s)
-        self.margin_s = float(margin_s)  # 0x020C comes at 1 Hz: one update plus latency
+        self.margin_s = float(margin_s)  # 0x020C comes at 1 Hz: the longest wait for a decision (two reports + latency)
+        self.latency_s = float(latency_s)  # link latency: a report this soon after a guess started does not reflect it
         self.blind_s = float(blind_s)  # without mark feedback a guess lasts this long
+        self.bits_trial_max_s = float(bits_trial_max_s)  # bits only: longest wait for the bit a right guess would raise
         self.vmax, self.reach_margin, self.max_reach = float(vmax_mps), float(reach_margin_m), float(max_reach_m)
         self.guesses: dict[str, Guess] = {}
         self.bans: dict[tuple[str, str], float] = {}
@@ -167,8 +169,10 @@ class Guesser:
             return self.blind_s
         if pv.kind == "progress_bits":
             e = pv.estimate.get(number, 0.0)
-            return max(0.0, (pv.vuln - e) / max(pv.up, 1e-6)) + self.margin_s if not pv.vulnerable.get(number) else self.margin_s
-        return self.margin_s
+            if pv.vulnerable.get(number):
+                return self.margin_s
+            return min(max(0.0, (pv.vuln - e) / max(pv.up, 1e-6)), self.bits_trial_max_s) + self.margin_s
+        return self.margin_s + 1.0  # no report at all for this long: drop
 
     def _end(self, t: float, g: Guess, event: str, ban: bool) -> None:
         self.guesses.pop(g.slot, None)
@@ -178,27 +182,40 @@ class Guesser:
             self.bans[(g.slot, g.key)] = t + self.ban_s
             n = self.fails.get(g.slot, 0) + 1
             self.fails[g.slot] = n
-            self.paused_until[g.slot] = t + min(self.pause_s * 2 ** (n - 1), self.pause_max_s)
+            # the pause doubles with each failure in a row and is never shorter than the failed guess lasted, so
+            # guesses of a robot that is not there take at most half of its absence, less and less as it goes on
+            self.paused_until[g.slot] = t + min(max(self.pause_s * 2 ** (n - 1), t - g.t0), self.pause_max_s)
+
+    def _confirm(self, t: float, g: Guess) -> None:
+        g.t_ok, g.trial_s = t, self.margin_s
+        if not g.confirmed:
+            g.confirmed = True
+            self.stats.confirmed += 1
+            self.fails[g.slot] = 0
 
     def _check(self, t: float, g: Guess, number: int, fresh: bool) -> bool:
-        """Keep (True) or drop the guess on the mark progress."""
+        """Keep (True) or drop the guess on the mark progress.
+
+        Progress seasons: the first 0x020C at least ``latency_s`` after the guess started is the reference; each later
+        one must show the progress higher than the one before (or at the ceiling), so a wrong guess is dropped at
+        the second report, 1.3-2.3 s after it started. Bits: kept while the bit is set; without it, until the
+        progress could have reached the bit (``trial_s``)."""
         pv = self.progress
         if fresh and pv.has_feedback:
             if pv.kind == "progress":
                 p = pv.progress.get(number)
-                if p is not None and (g.p_last is not None and p > g.p_last or p >= pv.full):
-                    g.t_ok, g.trial_s = t, self.margin_s
-                    if not g.confirmed:
-                        g.confirmed = True
-                        self.stats.confirmed += 1
-                        self.fails[g.slot] = 0
-                g.p_last = p
-            elif pv.kind == "progress_bits" and pv.vulnerable.get(number):
-                g.t_ok, g.trial_s = t, self.margin_s
-                if not g.confirmed:
-                    g.confirmed = True
-                    self.stats.confirmed += 1
-                    self.fails[g.slot] = 0
+                if p is not None and t >= g.t0 + self.latency_s:
+                    if p >= pv.full or (g.p_last is not None and p > g.p_last):
+                        self._confirm(t, g)
+                    elif g.p_last is not None:
+                        g.p_last = p
+                        return False
+                    g.p_last = p
+            elif pv.kind == "progress_bits":
+                if pv.vulnerable.get(number):
+                    self._confirm(t, g)
+                elif g.confirmed:
+                    return False  # the bit fell: the progress went down under the guess
         return t - g.t_ok <= g.trial_s
 
     def update(self, t: float, frame: RosterFrame, fresh_mark: bool) -> dict[str, Guess]:
@@ -209,8 +226,7 @@ class Guesser:
         self.bans = {k: v for k, v in self.bans.items() if v > t}
         slots = {s.label: s for s in frame.slots if s.enemy}
         cands = {c.id: c for c in frame.candidates}
-        used: set[int] = set()
-        # 1. the running guesses: still needed, still there, still confirmed?
+        # 1. the running guesses: still needed, still there, still confirmed by the progress?
         for lab, g in list(self.guesses.items()):
             s = slots.get(lab)
             if s is None or s.state != EMPTY or s.dead:
@@ -218,44 +234,57 @@ class Guesser:
                 continue
             if g.track_id is not None:
                 c = cands.get(g.track_id)
-                if c is None or g.track_id in used:
+                if c is None:
                     self._end(t, g, "candidate gone", ban=False)
                     continue
                 g.xy = c.xy.copy()
-                used.add(g.track_id)
             elif s.xy is not None:
                 g.xy = s.xy.copy()
             if not self._check(t, g, s.number, fresh_mark):
                 self._end(t, g, "not confirmed", ban=True)
-                if g.track_id is not None:
-                    used.discard(g.track_id)
-        # 2. new guesses for the empty slots without one
-        need = [s for s in slots.values() if s.state == EMPTY and not s.dead and s.label not in self.guesses and self.paused_until.get(s.label, -np.inf) <= t]
-        free = [c for c in frame.candidates if c.id not in used]
+        # 2. (re)assign: slots without a guess, with an unconfirmed last-position guess (a track within reach is more
+        # plausible) or with a track guess of a never-seen slot (it yields to a slot that knows where its robot was)
+        def open_row(s) -> bool:
+            g = self.guesses.get(s.label)
+            if g is None:
+                return self.paused_until.get(s.label, -np.inf) <= t
+            return (g.track_id is None and not g.confirmed) or (g.track_id is not None and s.xy_seen is None and not g.confirmed)
+
+        rows = [s for s in slots.values() if s.state == EMPTY and not s.dead and open_row(s)]
+        kept = {g.track_id for lab, g in self.guesses.items() if g.track_id is not None and lab not in {s.label for s in rows}}
+        free = [c for c in frame.candidates if c.id not in kept]
         pick: dict[str, object] = {}
-        if need and free:
-            C = np.full((len(need), len(free)), 1e6)
-            for i, s in enumerate(need):
+        if rows and free:
+            C = np.full((len(rows), len(free)), 1e6)
+            for i, s in enumerate(rows):
+                own = self.guesses.get(s.label)
                 for j, c in enumerate(free):
                     if (s.label, f"track:{c.id}") in self.bans:
                         continue
                     if s.xy_seen is None:
                         C[i, j] = 50.0  # never seen: anywhere, after every slot with a history
-                        continue
-                    d = float(np.linalg.norm(c.xy - s.xy_seen))
-                    reach = min(self.vmax * max(t - s.t_seen, 0.0) + self.reach_margin, self.max_reach)
-                    if d <= reach:
-                        C[i, j] = d
+                    else:
+                        d = float(np.linalg.norm(c.xy - s.xy_seen))
+                        reach = min(self.vmax * max(t - s.t_seen, 0.0) + self.reach_margin, self.max_reach)
+                        if d <= reach:
+                            C[i, j] = d
+                    if own is not None and own.track_id == c.id and C[i, j] < 1e6:
+                        C[i, j] -= 0.5  # hysteresis: keep the guess it has
             r, cc = linear_sum_assignment(C)
             for i, j in zip(r, cc):
                 if C[i, j] < 1e6:
-                    pick[need[i].label] = free[j]
-        for s in need:
+                    pick[rows[i].label] = free[j]
+        for s in rows:
             c = pick.get(s.label)
+            own = self.guesses.get(s.label)
+            if own is not None:
+                if c is None or own.track_id == c.id:
+                    continue  # no better candidate: keep what it has
+                self._end(t, own, "switched", ban=False)
             if c is not None:
-                g = Guess(s.label, f"track:{c.id}", c.xy.copy(), t, t, self._trial(s.number), self.progress.value(s.number), c.id)
+                g = Guess(s.label, f"track:{c.id}", c.xy.copy(), t, t, self._trial(s.number), None, c.id)
             elif s.xy is not None and (s.label, "last") not in self.bans:
-                g = Guess(s.label, "last", s.xy.copy(), t, t, self._trial(s.number), self.progress.value(s.number))
+                g = Guess(s.label, "last", s.xy.copy(), t, t, self._trial(s.number), None)
             else:
                 continue
             self.guesses[s.label] = g
@@ -337,12 +366,12 @@ class Scheduler:
         if self.layout.startswith("all"):
             if not enemy and not ally:
                 return None
-            return rp.map_payload(self.rules.season, {m.number: tuple(m.xy) for m in enemy}, {n: tuple(xy) for n, xy in ally.items()}, self.enemy_team)[0]
+            return rp.map_payload(self.rules.season, {m.number: tuple(m.xy) for m in enemy}, {n: tuple(xy) for n, xy in ally.items()}, self.enemy_team, layout=self.layout)[0]
         if not enemy:
             return None
         best = max(enemy, key=lambda m: (m.priority > 0, t - self._last_robot.get(m.number, -1e9) + 0.5 * m.priority))
         self._last_robot[best.number] = t
-        return rp.map_payload(self.rules.season, {best.number: tuple(best.xy)}, None, self.enemy_team)[0]
+        return rp.map_payload(self.rules.season, {best.number: tuple(best.xy)}, None, self.enemy_team, layout=self.layout)[0]
 
     def frame(self, t: float, enemy: list[MapTarget], ally: dict[int, np.ndarray], interactions: list[Interaction]) -> list[tuple[int, bytes, int]]:
         """(cmd_id, data, mailbox key) to send at loop time ``t``."""

@@ -262,13 +262,15 @@ def _cm(xy) -> tuple[int, int]:
     return tuple(int(min(max(round(v * 100.0), 0), 65535)) if np.isfinite(v) else 0 for v in (x, y))  # type: ignore[return-value]
 
 
-def map_payload(season: int, enemy: dict[int, tuple[float, float]], ally: dict[int, tuple[float, float]] | None = None, enemy_team: str = "blue", angle: dict[int, float] | None = None) -> list[bytes]:
+def map_payload(season: int, enemy: dict[int, tuple[float, float]], ally: dict[int, tuple[float, float]] | None = None, enemy_team: str = "blue", angle: dict[int, float] | None = None,
+                layout: str | None = None) -> list[bytes]:  # fmt: skip
     """0x0305 payload(s) for a season. ``enemy``/``ally`` map robot number (1 hero .. 7 sentry) -> field (x, y) m.
 
     All-robots layouts return one payload (missing robots are (0, 0) = "not sent"; metres -> cm, rounded, clamped
     to 0..65535). Single-target layouts return one payload per enemy robot (``enemy_team`` gives its referee id).
+    ``layout`` overrides the season's (a season table with a changed layout).
     """
-    layout = map_layout(season)
+    layout = layout or map_layout(season)
     if layout.startswith("all"):
         slots = MAP_SLOTS[2024 if layout == "all24" else 2026]
         vals: list[int] = []
