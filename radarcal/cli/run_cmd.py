@@ -79,12 +79,13 @@ def run(
         raise InputError("--localise", f"expected auto, lidar or box, got {localise!r}")
     if lidar_only and (no_lidar or localise == "box"):
         raise InputError("--no-camera", "LiDAR-only needs the clouds and --localise auto or lidar")
+    marking_cfg = marking_overrides(roster, guess, dv_at, dv_enemies_in_half, dv_on_key, dv_on_dart)
     if replay is not None and is_recording(replay):
         from radarcal.cli.run_recording import run_recording
 
         return run_recording(replay, bundle=bundle, speed=speed or 0.0, detector=detector, names=names, conf=conf, threads=threads, detections=detections, serial=serial,
                              out=out, minimap=minimap, camera=camera, lidar=lidar, team=team, season=season, max_frames=max_frames, no_lidar=no_lidar,
-                             quiet=quiet, as_json=as_json, sentry_xy=sentry_xy)  # fmt: skip
+                             quiet=quiet, as_json=as_json, sentry_xy=sentry_xy, marking=marking_cfg)  # fmt: skip
     if record is not None and replay is not None:
         raise InputError("--record", "records live inputs: not with --replay")
     live_multi = len(clouds) > 1
@@ -117,7 +118,6 @@ def run(
         timing = {"cloud_sweep_s": float(meta["cloud_sweep_s"]), "cloud_latency_s": float(meta.get("cloud_latency_s", 0.0))}
     elif str(meta.get("generator", "")).startswith("radarcal synth field"):  # robots frozen at the cloud stamp
         timing = {"cloud_sweep_s": 0.0, "cloud_latency_s": 0.0}
-    marking_cfg = marking_overrides(roster, guess, dv_at, dv_enemies_in_half, dv_on_key, dv_on_dart)
     cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy, localise="lidar" if lidar_only else localise, **timing, **marking_cfg)
     check_season(cfg.season, "--season" if season is not None else f"{bundle}: runtime.referee_season")
     check_outputs(bundle, [("track file", out), ("minimap", minimap)], b, inputs=[detections, rep.detections if rep else None, rep.truth if rep else None])
