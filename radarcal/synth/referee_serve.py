@@ -167,3 +167,29 @@ def serve(sim: RefereeSim, port, log_path=None, idle_exit_s: float = 3.0, start_
     finally:
         if log is not None:
             log.close()
+
+
+def play_match(sim: RefereeSim, command: list[str], log_path=None, timeout_s: float = 600.0, env: dict | None = None, cwd=None, **serve_kw):
+    """Run ``command + ["--serial", PTY]`` (e.g. ``radarcal run --replay DIR --speed 1``) against ``sim`` on a new
+    pty; returns (:class:`ServeResult`, the command's ``subprocess.CompletedProcess``). The simulator stops shortly
+    after the command exits (or at the end of the truth, or when the command goes silent)."""
+    import subprocess
+    import threading
+
+    port = PtyPort(*open_pty())
+    done = threading.Event()
+    out: dict = {}
+
+    def target():
+        out["result"] = serve(sim, port, log_path, stop=done.is_set, **serve_kw)
+
+    th = threading.Thread(target=target, name="referee-sim", daemon=True)
+    th.start()
+    try:
+        proc = subprocess.run([*command, "--serial", port.path], capture_output=True, text=True, timeout=timeout_s, env=env, cwd=cwd)
+    finally:
+        time.sleep(0.3)  # the last frames are in the pty: one more read
+        done.set()
+        th.join(30.0)
+        port.close()
+    return out["result"], proc
