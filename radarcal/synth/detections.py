@@ -401,7 +401,7 @@ def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchC
             truth.append({"label": lab, "p_field": [_fmt(v) for v in P[f, i]], "visible": visible, "visible_fraction": _fmt(frac[i], 3),
                           "in_view": bool(np.isfinite(full[i, 0])), "lidar_hits": int(hits_per_cloud[last, i]) if last >= 0 else 0,
                           "xyxy": None if not visible else [_fmt(v, 2) for v in vb[i]], **({"camera_miss": True} if cam_miss else {})})  # fmt: skip
-            if not visible or frac[i] < cfg.min_visible or rng_det.random() < cfg.miss or cam_miss:
+            if not visible or frac[i] < cfg.min_visible or rng_det.random() < cfg.miss:
                 continue
             b = vb[i] + rng_det.normal(0, rng_det.uniform(*cfg.jitter_px), 4)
             b = np.array([min(b[0], b[2] - 2), min(b[1], b[3] - 2), max(b[2], b[0] + 2), max(b[3], b[1] + 2)])
@@ -410,7 +410,10 @@ def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchC
             if lab.split("_")[1] in ("3", "4") and rng_det.random() < cfg.swap:
                 out_lab = _swap_label(lab)
                 n_swap += 1
-            dets.append({"xyxy": [_fmt(v, 2) for v in b], "label": out_lab, "score": _fmt(rng_det.uniform(0.55, 0.98), 3)})
+            score = _fmt(rng_det.uniform(0.55, 0.98), 3)
+            if cam_miss:  # dropped after its noise was drawn: the other boxes keep the noise of the replay without the window
+                continue
+            dets.append({"xyxy": [_fmt(v, 2) for v in b], "label": out_lab, "score": score})
             n_det += 1
         for _ in range(rng_det.poisson(cfg.false_positives)):
             lab = str(rng_det.choice(_ALL_LABELS))
