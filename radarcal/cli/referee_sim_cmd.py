@@ -83,7 +83,8 @@ def referee_sim(
     if record is not None:
         from radarcal.cli.outputs import check_output
 
-        check_output(record, {Path(rep.truth).resolve(): "the replay's truth"}, what="frame log")
+        mine = {Path(q).resolve(): f"the replay's {Path(q).name}" for q in (rep.truth, rep.bundle, rep.detections, rep.root / "meta.json") if q is not None}
+        check_output(record, mine, what="frame log")
     team = team or str(rep.meta.get("station", "red"))
     r = rules(season)
     over = {k: v for k, v in (("score_correct_per_s", score_correct), ("score_wrong_per_s", score_wrong), ("mark_radius_m", mark_radius)) if v is not None}
