@@ -10,13 +10,14 @@ Each run is `radarcal run --replay R --serial PTY --speed 1` against :class:`rad
 
 1. per enemy robot: correct-mark seconds and the fraction of the match it was vulnerable (2026 rule: progress +5/s
    correct, -10/s wrong or not sent, vulnerable at >= 100 - UNCERTAIN rates), for each marking configuration
-   (--no-roster/--roster x --no-guess/--guess; before those flags exist: the current run only);
+   (--no-roster, --roster --no-guess, --roster --guess; before those flags exist: the current run only);
 2. camera miss: on seed 2 the detector misses one enemy robot for 10 s (15-25 s) while the LiDAR sees it
    (`--camera-miss`): correct-mark seconds of that robot with and without guessing;
 3. truly absent: the same robot is not on the field (`--absent`): its wrong-mark seconds / match seconds with and
    without guessing (goal < 1/3);
 4. the link: frames over the byte budget / rate, malformed frames, and every season's 0x0305 layout decoded by the
-   simulator (the sample replay, 3 s per season).
+   simulator (the sample replay, 3 s per season);
+5. double vulnerability: `--dv-at 20` with chances granted at 10 s and 30 s: requests seen, used, refused, illegal.
 """
 
 from __future__ import annotations
@@ -33,8 +34,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 SEEDS = (2, 3, 5)
 MISS = (15.0, 25.0)
-CONFIGS = (("no roster, no guess", ["--no-roster", "--no-guess"]), ("no roster, guess", ["--no-roster", "--guess"]),
-           ("roster, no guess", ["--roster", "--no-guess"]), ("roster + guess", ["--roster", "--guess"]))  # fmt: skip
+# guessing fills empty roster slots, so it needs the roster (`--no-roster --guess` is `--no-roster`)
+CONFIGS = (("no roster, no guess", ["--no-roster", "--no-guess"]), ("roster, no guess", ["--roster", "--no-guess"]), ("roster + guess", ["--roster", "--guess"]))
 
 
 def _make(out: Path, seed: int, frames: int, extra: list[str] = ()) -> Path:
@@ -177,6 +178,14 @@ def main(argv: list[str]) -> int:
         over = k["over_link_budget"] + k["over_interaction_budget"]
         print(f"{sn:6d} {rules(sn).map_layout.value:>9s} {k['by_cmd'].get('0x0305', 0):7d} {k['layout_checked']:8d} {k['malformed_total']:9d} {k['over_rate']:9d} {over:11d} {s['total']['correct_s']:9.1f}")
         results["seasons"][sn] = k
+    # 5. a double-vulnerability policy through the simulator's 0x0121 counter
+    if flags:
+        s, run = _match(base, season, ["--dv-at", "20"], grants=(10.0, 30.0))
+        all_summaries.append(s)
+        d = s["double_vulnerability"]
+        results["double_vulnerability"] = d
+        print(f"\n5. --dv-at 20 (chances at 10 s, 30 s): {d['granted']} granted, {d['used']} used, {d['refused']} refused, {d['illegal']} illegal; "
+              f"events {d['events']}")
     tot = _link_totals(all_summaries)
     results["link_totals"] = tot
     print(f"\nall {len(all_summaries)} runs: {tot['frames']} frames from radarcal, {tot['layout_checked']} 0x0305 layouts checked, {tot['malformed_total']} malformed, "
