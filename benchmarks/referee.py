@@ -125,8 +125,10 @@ def main(argv: list[str]) -> int:
             s, run = _match(rep, season, extra)
             per[(seed, name)] = s
             all_summaries.append(s)
-            results["runs"][f"seed{seed}/{name}"] = {"sim": s, "fps": run.get("fps"), "serial": run.get("serial")}
-            print(f"  seed {seed} {name}: total correct {s['total']['correct_s']:.1f} s, score {s['total']['score']:.0f}", flush=True)
+            results["runs"][f"seed{seed}/{name}"] = {"sim": s, "fps": run.get("fps"), "wall_s": run.get("wall_s"), "serial": run.get("serial")}
+            lag = run.get("wall_s", 0.0) - frames / 30.0  # a paced run that cannot keep up ends late: its marks are stale
+            print(f"  seed {seed} {name}: total correct {s['total']['correct_s']:.1f} s, score {s['total']['score']:.0f}; run {run.get('fps', 0):.1f} FPS, "
+                  f"ended {lag:+.1f} s after the replay's length", flush=True)
     print(f"\n1. correct-mark seconds / % of the match vulnerable, per enemy robot (season {season}, {frames / 30:.0f} s matches)")
     head = f"{'seed':>4s} {'robot':7s} " + " ".join(f"{c:>22s}" for c, _ in configs)
     print(head)
