@@ -569,7 +569,9 @@ class Marking:
             enemy_n = (1, 2, 3, 4, 5, 7)
         self.team = team
         self.roster = Roster(slot_labels(team, enemy_n, ally_n), enemy, hold_s=self.cfg.roster_hold_s if self.cfg.roster else 0.0, use_history=self.cfg.roster)
-        self.scheduler = Scheduler(self.rules, enemy)
+        if self.scheduler is None:
+            self.scheduler = Scheduler(self.rules, enemy)
+        self.scheduler.enemy_team = enemy  # a team change keeps the rate windows: no burst after it
 
     def _dead_numbers(self, state, enemy: str) -> set[int]:
         """Enemy robots the referee's HP says are dead (0x0003 with enemy HP, in the match)."""

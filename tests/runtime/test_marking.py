@@ -197,7 +197,7 @@ def test_no_frame_over_the_byte_budget_over_a_long_run(season):
         res = FrameResult(t, "f", rob, {"sentry": [3.0, 3.0]}, 12.5, {})
         if rng.random() < 0.001:
             mk.operator_dv()
-        for cmd, data, key in mk.messages(res, "red", st):
+        for cmd, data, key in mk.messages(res, "red" if k < 4000 else "blue", st):  # the referee changes our colour late on
             buf = rp.pack_frame(cmd, data, seq)
             seq += 1
             got = parser.feed(buf)
