@@ -250,7 +250,10 @@ class Guesser:
                 return self.paused_until.get(s.label, -np.inf) <= t
             return (g.track_id is None and not g.confirmed) or (g.track_id is not None and s.xy_seen is None and not g.confirmed)
 
-        rows = [s for s in slots.values() if s.state == EMPTY and not s.dead and open_row(s)]
+        # with bits only (2026) a guess for a robot never seen could not be confirmed before its progress reached 100
+        # from nothing (20 s at +5/s): no basis, no check, so no guess
+        blind_ok = self.progress.kind != "progress_bits"
+        rows = [s for s in slots.values() if s.state == EMPTY and not s.dead and (blind_ok or s.xy_seen is not None) and open_row(s)]
         kept = {g.track_id for lab, g in self.guesses.items() if g.track_id is not None and lab not in {s.label for s in rows}}
         free = [c for c in frame.candidates if c.id not in kept]
         pick: dict[str, object] = {}

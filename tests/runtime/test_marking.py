@@ -404,3 +404,23 @@ def test_sentry_message_carries_the_roster_and_its_replies_show_liveness():
     lv = SentryLiveness(timeout_s=1.0)
     lv.update(0.0, st, "blue")  # as blue, red 7 is not our sentry
     assert lv.text(0.0) == "sentry -"
+
+
+@pytest.mark.parametrize("season,guesses", [(2024, True), (2026, False)])
+def test_a_robot_never_seen(season, guesses):
+    """Blue 2 never appears; an unnamed object stands on the field. 2024: guessed, dropped at the second report, the
+    slot pauses longer after each failure (wrong marks well under a third of the match); 2026: no guess at all (with
+    bits only it could not be confirmed)."""
+    mk = Marking(RunConfig(season=season))
+    ref = ScriptReferee(season)
+    for k in range(90 * 20):
+        t = k / 20
+        msgs = mk.messages(frame(t, [robot("blue_1", (20.0, 10.0), 1), robot(None, (6.0, 4.0), 40)]), "red", ref.state)
+        ref.receive(t, msgs)
+        ref.step(t, {1: np.array([20.0, 10.0])})
+    log = [(t, e) for t, lab, _, e in mk.guesser.log if lab == "blue_2"]
+    print(season, "blue_2 wrong s", round(ref.wrong[2], 1), "of 90;", [(round(t, 1), e) for t, e in log])
+    if guesses:
+        assert log and ref.wrong[2] < 90 / 6 and all(e != "found" for _, e in log)
+    else:
+        assert not log and ref.wrong[2] == 0
