@@ -115,15 +115,15 @@ class Roster:
 
     # --- label history -------------------------------------------------------------------------------------------
     def _evidence(self, o: TrackObs, dt: float) -> None:
+        # every label counts, slot or not: an ally the season sends no slot for is still no stranger
         h = self.history.setdefault(o.id, {})
         if o.label is not None:
-            if o.label in self.slots:
-                h[o.label] = h.get(o.label, 0.0) + dt
+            h[o.label] = h.get(o.label, 0.0) + dt
             return
         tot = sum(v for v in o.votes.values() if v > 0)
         if tot > 0:
             for lab, v in o.votes.items():
-                if lab in self.slots and v > 0:
+                if v > 0:
                     h[lab] = h.get(lab, 0.0) + 0.5 * dt * v / tot  # unnamed votes count half: the labeller did not decide
 
     def update(self, t: float, tracks: list[TrackObs]) -> RosterFrame:

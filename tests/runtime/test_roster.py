@@ -153,6 +153,10 @@ def test_unlabelled_tracks_are_candidates_but_a_robot_that_lost_its_name_keeps_i
     fr = ro.update(1.0, [TrackObs(1, None, np.array([10.1, 3.0])), TrackObs(2, None, np.array([20.0, 8.0])), TrackObs(3, None, np.array([4.0, 4.0]), seen=False)])
     assert fr.slot("blue_4").track_id == 1 and fr.slot("blue_4").state == SEEN
     assert [c.id for c in fr.candidates] == [2]  # 1 holds a slot, 3 is not seen
+    ro = Roster(slot_labels("red", (1, 2, 3, 4, 5, 7)), "blue")  # no ally slots (2024)
+    for k in range(30):
+        ro.update(k / 30.0, [TrackObs(5, "red_3", np.array([3.0, 3.0]))])
+    assert ro.update(1.0, [TrackObs(5, None, np.array([3.0, 3.0]))]).candidates == []  # our infantry lost its name: no stranger
 
 
 def test_ally_slots_and_dead_robots():
