@@ -46,7 +46,7 @@ class RunConfig:
     # marking (radarcal.runtime.roster / marking, docs/runtime.md "Roster, guessing, bandwidth, double vulnerability")
     roster: bool = True  # fixed robot slots by label history (False: each frame's labels as they are)
     guess: bool = True  # send a guess for an empty slot, kept while that robot's mark progress rises
-    roster_hold_s: float = 3.0  # a lost slot is predicted this long, then left empty
+    roster_hold_s: float = 0.5  # a lost slot is predicted this long (longer while the pipeline predicts its track by name), then left empty
     guess_ban_s: float = 8.0  # a guess the mark progress did not confirm is not tried again for this long
     dv_at_s: float | None = None  # double vulnerability at this match time (s since the match started)
     dv_enemies_in_half: int | None = None  # ... when at least this many enemies are in our half

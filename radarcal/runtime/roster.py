@@ -99,8 +99,8 @@ class RosterFrame:
 class Roster:
     """Fixed slots for ``labels`` (``"blue_3"``...); ``enemy_team`` tells which are enemies."""
 
-    def __init__(self, labels: list[str], enemy_team: str, hold_s: float = 3.0, use_history: bool = True, history_tau_s: float = 20.0,
-                 min_history_s: float = 0.1, lost_s: float = 0.4, stick: float = 0.25, velocity_tau_s: float = 1.0):  # fmt: skip
+    def __init__(self, labels: list[str], enemy_team: str, hold_s: float = 3.0, use_history: bool = True, history_tau_s: float = 5.0,
+                 min_history_s: float = 0.1, lost_s: float = 0.4, stick: float = 0.25, velocity_tau_s: float = 1.0, flip_s: float = 0.5):  # fmt: skip
         self.slots = {lab: Slot(lab, int(lab.rsplit("_", 1)[1]), lab.startswith(enemy_team + "_")) for lab in labels}
         self.hold_s = float(hold_s)
         self.use_history = bool(use_history)
@@ -111,6 +111,8 @@ class Roster:
         self.velocity_tau_s = float(velocity_tau_s)
         self.history: dict[int, dict[str, float]] = {}
         self._t_track: dict[int, float] = {}  # track id -> last time it was seen
+        self.flip_s = float(flip_s)  # a label (or no label) the labeller has kept this long is its decision, not a flip
+        self._since: dict[int, tuple[str | None, float]] = {}  # track id -> (current label, since when)
         self._t: float | None = None
 
     # --- label history -------------------------------------------------------------------------------------------
@@ -137,6 +139,9 @@ class Roster:
         self._t = t
         dt = dt if dt > 0 else 1.0 / 30.0
         for o in tracks:
+            prev = self._since.get(o.id)
+            if prev is None or prev[0] != o.label:
+                self._since[o.id] = (o.label, t)
             if o.seen:
                 self._t_track[o.id] = t
                 self._evidence(o, dt)
@@ -146,6 +151,7 @@ class Roster:
         for tid in [k for k, ts in self._t_track.items() if k not in live_ids and t - ts > 3 * self.history_tau_s]:
             self._t_track.pop(tid, None)
             self.history.pop(tid, None)
+            self._since.pop(tid, None)
         by_id = {o.id: o for o in tracks}
         assign = self._assign_history(t, tracks) if self.use_history else self._assign_per_frame(tracks)
         taken = set(assign.values())
@@ -161,7 +167,7 @@ class Roster:
                 s.state = SEEN if o.seen else PREDICTED
                 if not self.use_history:
                     continue
-                if not o.seen and t - s.t_seen > self.hold_s:
+                if not o.seen and t - s.t_seen > self.hold_s and o.label != lab:
                     s.state = EMPTY
                 continue
             if not self.use_history:  # per-frame: nobody carries the label now -> nothing to send
@@ -176,32 +182,49 @@ class Roster:
                 s.xy = s.xy + s.v * k
                 s.v = s.v * np.exp(-dtp / self.velocity_tau_s)
                 s.t_pos = t
+            still = own is not None and own.id not in taken and own.label == lab  # the pipeline still predicts it by name
             if own is None or own.id in taken:
                 s.track_id = None
-            s.state = PREDICTED if s.xy is not None and t - s.t_seen <= self.hold_s else EMPTY
+            s.state = PREDICTED if s.xy is not None and (still or t - s.t_seen <= self.hold_s) else EMPTY
         held = {s.track_id for s in self.slots.values() if s.track_id is not None}
         cands = [o for o in tracks if o.seen and not o.dead and o.label is None and o.id not in held and self._unclaimed(o.id)]
         return RosterFrame(t, list(self.slots.values()), cands)
 
+    def _stable(self, o: TrackObs, t: float) -> bool:
+        """The track's current label (or lack of one) has lasted ``flip_s``: the labeller decided."""
+        lab, since = self._since.get(o.id, (o.label, t))
+        return lab == o.label and t - since >= self.flip_s
+
     def _unclaimed(self, tid: int) -> bool:
-        """No slot history worth a slot (a named robot that lost its name is not a stranger)."""
+        """No slot history worth a slot (a named robot that lost its name for a moment is not a stranger; one unnamed
+        for ``flip_s`` is: measured on generated matches, such a track was never its old robot any more)."""
+        lab, since = self._since.get(tid, (None, -np.inf))
+        if lab is None and self._t is not None and self._t - since >= self.flip_s:
+            return True
         h = self.history.get(tid, {})
         return not h or max(h.values()) < self.min_history_s
 
     def _assign_history(self, t: float, tracks: list[TrackObs]) -> dict[str, int]:
+        """Hungarian on the label history, with the labeller's stable decisions first: a track whose label has
+        lasted ``flip_s`` takes that slot; a younger label takes it when the slot's track is not seen now; a track
+        unnamed for ``flip_s`` holds no slot. Shorter flips are bridged by the history."""
         from scipy.optimize import linear_sum_assignment
 
-        comp = [o for o in tracks if t - self._t_track.get(o.id, -np.inf) <= self.lost_s]
+        comp = [o for o in tracks if t - self._t_track.get(o.id, -np.inf) <= self.lost_s and not (o.label is None and self._stable(o, t))]
         labels = list(self.slots)
         if not comp:
             return {}
+        holder_seen = {lab: any(o.id == s.track_id and o.seen for o in comp) for lab, s in self.slots.items()}
         S = np.zeros((len(comp), len(labels)))
         for i, o in enumerate(comp):
             h = self.history.get(o.id, {})
+            stable = self._stable(o, t)
             for j, lab in enumerate(labels):
                 S[i, j] = h.get(lab, 0.0)
                 if self.slots[lab].track_id == o.id:
                     S[i, j] *= 1.0 + self.stick
+                if o.label == lab and o.seen and (stable or not holder_seen[lab]):
+                    S[i, j] += 1e3
         ok = S >= self.min_history_s
         cost = np.where(ok, -S, 1e6)
         r, c = linear_sum_assignment(cost)
