@@ -101,7 +101,7 @@ def main(argv: list[str]) -> int:
     tic = time.perf_counter()
     configs = [(name, {k: v for f in flags for k, v in FLAGS[f].items()}) for name, flags in CONFIGS]
     print(f"replays in {work}; season {season}; {frames} frames per replay; seeds {seeds}; replay clock (no pacing)", flush=True)
-    print(f"\n1. correct-mark s / % of the match vulnerable per enemy robot, and the match's total score")
+    print("\n1. correct-mark s / % of the match vulnerable per enemy robot, and the match's total score")
     print(f"{'seed':>4s} {'robot':7s} " + " ".join(f"{c:>22s}" for c, _ in configs))
     means = {c: [0.0, 0.0, 0, 0.0] for c, _ in configs}
     for seed in seeds:
