@@ -187,6 +187,18 @@ class Bundle:
             raise InputError(self.path, f"no camera {name!r} in the bundle (cameras: {known})")
         return self.cameras[name].camera
 
+    def resolve_camera(self, name: str | None, option: str = "--camera") -> str:
+        """The camera a per-camera command works on: ``name`` (checked), else the bundle's only camera; several
+        cameras and no name -> an ``InputError`` naming ``option`` and the choices."""
+        if name is not None:
+            self.camera(name)
+            return name
+        if len(self.cameras) == 1:
+            return next(iter(self.cameras))
+        if not self.cameras:
+            raise InputError(self.path, "no camera in the bundle (run `radarcal intrinsics` or `radarcal bundle import` first)")
+        raise InputError(option, f"the bundle has {len(self.cameras)} cameras ({', '.join(sorted(self.cameras))}): pick one with {option}")
+
     def frames(self) -> set[str]:
         out = set(self.cameras) | set(self.sensors)
         for e in self.transforms.values():
