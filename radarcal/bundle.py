@@ -521,12 +521,17 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike | None = None) -> Path:
     return path
 
 
+def session_file_path(bundle: Bundle, key: str) -> Path:
+    """Where :func:`save_session` writes ``key``: ``<bundle folder>/<bundle stem>.sessions/<key with / as __>.npz``."""
+    return bundle.path.parent / f"{bundle.path.stem}.sessions" / (key.replace("/", "__") + ".npz")
+
+
 def save_session(bundle: Bundle, key: str, arrays: dict[str, np.ndarray], meta: dict | None = None) -> Path:
     """Store what a report needs (observations, residuals, per-view poses) next to the bundle as an ``.npz``
     and reference it from ``bundle.sessions[key]`` (save the bundle afterwards)."""
     if bundle.path is None:
         raise ValueError("save_session needs a bundle with a path")
-    rel = Path(f"{bundle.path.stem}.sessions") / (key.replace("/", "__") + ".npz")
+    rel = session_file_path(bundle, key).relative_to(bundle.path.parent)
     buf = _io.BytesIO()
     import json
 

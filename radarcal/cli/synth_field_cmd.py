@@ -13,19 +13,40 @@ from radarcal.errors import InputError
 __all__ = ["synth_field"]
 
 # what a replay folder holds (an --overwrite never removes a folder holding anything else)
-REPLAY_ENTRIES = ("images", "clouds", "detections.jsonl", "truth.jsonl", "truth.json", "meta.json", "calib.yaml", "calib.sessions", "calib.yaml.*.bak")
+REPLAY_ENTRIES = ("images", "clouds", "detections.jsonl", "truth.jsonl", "truth.json", "meta.json", "calib.yaml", "calib.sessions", "calib.yaml.*.bak", "cameras")
 
 
-def _parse_gap(text: str | None) -> tuple[float, float] | None:
+def _parse_gap(text: str | None, option: str = "--lidar-gap") -> tuple[float, float] | None:
     if not text:
         return None
     try:
         a, b = (float(x) for x in text.split(":"))
     except ValueError:
-        raise InputError("--lidar-gap", f"expected START:DURATION in seconds, got {text!r}") from None
+        raise InputError(option, f"expected START:DURATION in seconds, got {text!r}") from None
     if a < 0 or b <= 0:
-        raise InputError("--lidar-gap", f"START must be >= 0 and DURATION > 0, got {text!r}")
+        raise InputError(option, f"START must be >= 0 and DURATION > 0, got {text!r}")
     return a, b
+
+
+def _multicam(cameras: str | None, gap: str | None, scene):
+    """``--cameras`` / ``--camera-gap`` -> a :class:`MultiCameraConfig` (None: the single-camera replay)."""
+    if cameras is None:
+        if gap is not None:
+            raise InputError("--camera-gap", "needs --cameras")
+        return None
+    from radarcal.synth.field_cameras import MultiCameraConfig, parse_camera_specs
+
+    try:
+        specs = parse_camera_specs(cameras)
+    except ValueError as e:
+        raise InputError("--cameras", str(e)) from None
+    gaps = {}
+    if gap is not None:
+        name, _, rest = gap.partition(":")
+        if name not in [c.name for c in specs]:
+            raise InputError("--camera-gap", f"no camera {name!r} in --cameras")
+        gaps[name] = _parse_gap(rest, "--camera-gap")
+    return MultiCameraConfig(scene, specs, gaps=gaps)
 
 
 def synth_field(
@@ -42,6 +63,8 @@ def synth_field(
     image_every: int = typer.Option(1, "--image-every", help="Write an image for every k-th frame only (smaller replay; detections/truth stay per frame)."),
     det_jitter: float = typer.Option(0.0, "--det-jitter", help="σ (px) of jitter on detection box edges."),
     det_dropout: float = typer.Option(0.0, "--det-dropout", help="Probability of a missed detection per robot and frame."),
+    cameras: str = typer.Option(None, "--cameras", help="Several cameras: NAME=FOCALmm[:WxH][@X:Y],... e.g. cam0=6mm,cam1=16mm (aim point X:Y in field metres); one folder per camera under cameras/."),
+    camera_gap: str = typer.Option(None, "--camera-gap", help="With --cameras: NAME:START:DURATION seconds that camera is unplugged."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace OUT when it holds an earlier (or interrupted) replay."),
     as_json: JsonOpt = False,
 ) -> None:
@@ -70,13 +93,23 @@ def synth_field(
         if req not in fm.landmarks:
             raise InputError(field, f"field model lacks the landmark {req!r} (needed by radarcal run)")
     cfg = FieldSceneConfig(frames=frames, seed=seed, robots=robots, station=station, lidar_gap=_parse_gap(lidar_gap), lidar_points=lidar_points, image_scale=image_scale, jpeg_quality=jpeg_quality, image_every=image_every, det_jitter_px=det_jitter, det_dropout=det_dropout)
+    mc = _multicam(cameras, camera_gap, cfg)
     with replace_folder(out, overwrite, REPLAY_ENTRIES, "replay") as tmp:
-        summary = write_field_replay(tmp, fm, cfg, generator=command_line(), progress=lambda it, description="": progress(it, description, enabled=not as_json))
+        prog = lambda it, description="": progress(it, description, enabled=not as_json)  # noqa: E731
+        if mc is not None:
+            from radarcal.synth.field_cameras import write_multicam_replay
+
+            summary = write_multicam_replay(tmp, fm, mc, generator=command_line(), progress=prog)
+        else:
+            summary = write_field_replay(tmp, fm, cfg, generator=command_line(), progress=prog)
     summary["out"] = str(out)
 
     def human(s: dict) -> None:
         typer.echo(f"wrote {s['out']}: {s['frames']} frames ({s['images']} images), {s['clouds']} clouds ({s['cloud_points']} points), {s['robots']} robots, "
                    f"{s['visible_boxes']} visible robot boxes, {s['bytes'] / 1e6:.1f} MB")
-        typer.echo(f"  landmarks in view: {', '.join(s['landmarks_in_image'])}")
+        if s.get("cameras"):
+            typer.echo(f"  cameras: {', '.join(s['cameras'])} ({s['detections']} detection boxes)")
+        else:
+            typer.echo(f"  landmarks in view: {', '.join(s['landmarks_in_image'])}")
 
     emit(summary, as_json, human)

@@ -73,7 +73,8 @@ def replay_fields(folder: str | os.PathLike) -> dict:
             raise InputError(root / "meta.json", "not valid JSON") from None
     fps = float(meta.get("fps", 30.0))
     hz = float(meta.get("lidar_hz", 10.0))
-    frames = timed_files(root / "images", IMAGE_SUFFIXES, fps, "image")
+    multi = not (root / "images").is_dir() and (root / "cameras").is_dir() and bool(meta.get("cameras"))  # cameras/<name>/ (issue #19)
+    frames = [] if multi else timed_files(root / "images", IMAGE_SUFFIXES, fps, "image")
     clouds = timed_files(root / "clouds", CLOUD_SUFFIXES, hz, "point-cloud") if (root / "clouds").is_dir() else []
     det = root / "detections.jsonl"
     det = det if det.is_file() else None

@@ -155,17 +155,14 @@ class VoxelBackground:
 
     def is_background(self, keys: np.ndarray, t: float, grow: int = 1) -> np.ndarray:
         """Voxels of ``keys`` or (``grow`` = 1) any of their 8 horizontal neighbours learnt as background (a sparse
-        scan leaves holes in what it learnt)."""
-        out = self.occupancy(keys, t) >= self.threshold
-        if grow:
-            sx, sy = self.shape[1] * self.shape[2], self.shape[2]
-            n = len(self.occ)
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    if dx or dy:
-                        k = np.where(keys >= 0, np.clip(keys + dx * sx + dy * sy, 0, n - 1), -1)
-                        out |= self.occupancy(k, t) >= self.threshold
-        return out
+        scan leaves holes in what it learnt). One gather of the 9 neighbourhood voxels per key."""
+        if not grow:
+            return self.occupancy(keys, t) >= self.threshold
+        sx, sy = self.shape[1] * self.shape[2], self.shape[2]
+        off = np.array([dx * sx + dy * sy for dx in (-1, 0, 1) for dy in (-1, 0, 1)], np.int64)
+        k = np.clip(keys[:, None] + off[None], 0, len(self.occ) - 1)
+        hit = self.occ[k] * np.exp(-(t - self.t_last[k]) / self.tau_s) >= self.threshold
+        return hit.any(axis=1) & (keys >= 0)
 
     def update(self, keys: np.ndarray, t: float, protect: np.ndarray | None = None) -> None:
         """One cloud at time ``t``: the voxels of ``keys`` (not ``protect``ed) were hit."""
@@ -199,16 +196,16 @@ class StaticFilter:
     def _fit_ground(self, p: np.ndarray, surf: np.ndarray) -> None:
         """Fit the flat ground (cells where the surface is z = 0) seen in this cloud: a calibration tilt of a few
         tenths of a degree lifts or sinks the far ground by 10 cm; corrected, the height tolerance can stay small.
-        Least squares, trimmed twice; smoothed over clouds."""
+        Least squares, trimmed twice; smoothed over clouds. (The caller passes every ``len // 20000``-th point.)"""
         step = max(1, len(p) // 20000)
         p, surf = p[::step], surf[::step]
         ref = 0.0 if self.plane is None else p[:, 0] * self.plane[0] + p[:, 1] * self.plane[1] + self.plane[2]
-        m = (surf == 0) & (np.abs(p[:, 2] - ref) < 0.3)
-        g = p[m].astype(np.float64)
-        if len(g) < 300:
+        sel = np.flatnonzero((surf == 0) & (np.abs(p[:, 2] - ref) < 0.3))
+        if len(sel) < 300:
             return
-        if len(g) > 4000:
-            g = g[:: len(g) // 4000]
+        if len(sel) > 4000:
+            sel = sel[:: len(sel) // 4000]  # the same points as subsampling p[mask], without gathering all of them
+        g = p[sel].astype(np.float64)
         A = np.column_stack([g[:, 0], g[:, 1], np.ones(len(g))])
         w = np.ones(len(g), bool)
         coef = np.zeros(3)
@@ -247,21 +244,26 @@ class StaticFilter:
             self._top = (occ.surface + self.max_height_m).astype(np.float32)
         p = transform_f32(self.T_field_lidar, points_lidar)
         x0, y0, x1, y1 = self.crop
-        idx = np.flatnonzero((p[:, 0] > x0) & (p[:, 0] < x1) & (p[:, 1] > y0) & (p[:, 1] < y1))
-        p = p[idx]
-        iy = ((p[:, 1] - occ.y0) * (1.0 / occ.res)).astype(np.int32)
-        ix = ((p[:, 0] - occ.x0) * (1.0 / occ.res)).astype(np.int32)
+        px, py = p[:, 0], p[:, 1]
+        inside = (px > x0) & (px < x1) & (py > y0) & (py < y1)
+        # every test on the whole cloud and one gather at the end (gathering the crop first costs more than testing
+        # the few points outside it)
+        iy = ((py - occ.y0) * (1.0 / occ.res)).astype(np.int32)
+        ix = ((px - occ.x0) * (1.0 / occ.res)).astype(np.int32)
         np.clip(iy, 0, self._thr.shape[0] - 1, out=iy)
         np.clip(ix, 0, self._thr.shape[1] - 1, out=ix)
         cell = iy * self._thr.shape[1] + ix
         z = p[:, 2]
         if self.ground_fit:
-            self._fit_ground(p, occ.surface.ravel()[cell])
+            sub = np.flatnonzero(inside)
+            sub = sub[:: max(1, len(sub) // 20000)]  # what _fit_ground would take of the cropped cloud
+            self._fit_ground(p[sub], occ.surface.ravel()[cell[sub]])
             if self.plane is not None:
                 a, b, c = (np.float32(v) for v in self.plane)
-                z = z - (a * p[:, 0] + b * p[:, 1] + c)
-        m = (z >= self._thr.ravel()[cell]) & (z <= self._top.ravel()[cell])
-        idx, p = idx[m], p[m]
+                z = z - (a * px + b * py + c)
+        inside &= (z >= self._thr.ravel()[cell]) & (z <= self._top.ravel()[cell])
+        idx = np.flatnonzero(inside)
+        p = p[idx]
         bg = np.zeros(len(p), bool)
         if self.background is not None and t is not None and len(p):
             bg = self.background.is_background(self.background.keys(p), t)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ import numpy as np
 from radarcal.errors import InputError
 from radarcal.runtime.yolo_layouts import Layout, UnknownLayout, decode_batch, decode_v5_rows, detect_layout, nms, parse_meta_value, read_anchor_config
 
-__all__ = ["Detection", "letterbox", "decode_yolov5", "nms", "OnnxDetector", "OnnxModel", "DetectionsFile", "read_class_names", "resolve_providers"]
+__all__ = ["Detection", "Prepared", "letterbox", "tile_grid", "plan_rois", "decode_yolov5", "nms", "OnnxDetector", "OnnxModel", "DetectionsFile", "read_class_names", "resolve_providers"]
 
 
 @dataclass
@@ -50,21 +51,37 @@ class Detection:
         return d
 
 
-def letterbox(img: np.ndarray, size: int | tuple[int, int] = 640, color: int = 114) -> tuple[np.ndarray, float, tuple[float, float]]:
+def letterbox(img: np.ndarray, size: int | tuple[int, int] = 640, color: int = 114, scaleup: bool = True, out: np.ndarray | None = None) -> tuple[np.ndarray, float, tuple[float, float]]:
     """Resize keeping the aspect ratio and pad to ``size`` (h, w). Returns (image, scale, (pad_x, pad_y)):
-    a letterboxed pixel ``p`` maps back to ``(p - pad) / scale`` in the original image."""
+    a letterboxed pixel ``p`` maps back to ``(p - pad) / scale`` in the original image. ``scaleup=False`` never
+    enlarges (a small crop stays at its native resolution, padded). ``out``: a (h, w, C) uint8 buffer to write into
+    (no new allocation; its padding is rewritten only where the content does not cover it)."""
     import cv2
 
     th, tw = (size, size) if isinstance(size, int) else size
     h, w = img.shape[:2]
     r = min(th / h, tw / w)
+    if not scaleup:
+        r = min(r, 1.0)
     nw, nh = max(int(round(w * r)), 1), max(int(round(h * r)), 1)
     dw, dh = (tw - nw) / 2.0, (th - nh) / 2.0
-    if (nw, nh) != (w, h):
-        img = cv2.resize(img, (nw, nh), interpolation=cv2.INTER_LINEAR)
     top, bottom = int(round(dh - 0.1)), int(round(dh + 0.1))
     left, right = int(round(dw - 0.1)), int(round(dw + 0.1))
-    value = (color,) * (img.shape[2] if img.ndim == 3 else 1)
+    channels = img.shape[2] if img.ndim == 3 else 1
+    if out is not None and out.shape == (th, tw) + img.shape[2:] and out.dtype == img.dtype and img.ndim in (2, 3):
+        out[:top], out[top + nh :], out[top : top + nh, :left], out[top : top + nh, left + nw :] = color, color, color, color
+        inner = out[top : top + nh, left : left + nw]
+        if (nw, nh) != (w, h):
+            if left == 0 and right == 0:  # full-width rows: a contiguous block cv2 writes in place
+                cv2.resize(img, (nw, nh), dst=inner, interpolation=cv2.INTER_LINEAR)
+            else:
+                inner[...] = cv2.resize(img, (nw, nh), interpolation=cv2.INTER_LINEAR).reshape(inner.shape)
+        else:
+            inner[...] = img.reshape(inner.shape)
+        return out, r, (float(left), float(top))
+    if (nw, nh) != (w, h):
+        img = cv2.resize(img, (nw, nh), interpolation=cv2.INTER_LINEAR)
+    value = (color,) * channels
     out = cv2.copyMakeBorder(img, top, bottom, left, right, cv2.BORDER_CONSTANT, value=value)
     return out, r, (float(left), float(top))
 
@@ -223,38 +240,71 @@ class OnnxModel:
         self.batch = int(shape[0]) if isinstance(shape[0], int) and shape[0] > 0 else None  # None: any batch
         self.dtype = np.float16 if "float16" in inp.type else np.float32
 
-    def run_batch(self, x: np.ndarray) -> list[list[np.ndarray]]:
+    def run_batch(self, x: np.ndarray, parallel: int = 1) -> list[tuple[int, list[np.ndarray]]]:
         """Run ``x`` (n x C x H x W float32, 0..1) in as few calls as the input's batch size allows; the outputs of
-        each call (a fixed batch is padded with zeros, its extra rows ignored by the caller)."""
+        each call (a fixed batch is padded with zeros, its extra rows ignored by the caller). ``parallel`` > 1: the
+        calls of a fixed-batch model run at the same time in that many threads (onnxruntime releases the GIL; with one
+        intra-op thread per call this is how two frames use two cores)."""
         n = len(x)
         step = self.batch or max(n, 1)
-        runs = []
+        chunks = []
         for s in range(0, max(n, 1), step):
             chunk = x[s : s + step]
             if self.batch and len(chunk) < self.batch:
                 chunk = np.concatenate([chunk, np.zeros((self.batch - len(chunk),) + chunk.shape[1:], chunk.dtype)])
-            runs.append((min(step, n - s), self.session.run(self.output_names, {self.input_name: chunk.astype(self.dtype, copy=False)})))
-        return runs
+            chunks.append((min(step, n - s), chunk.astype(self.dtype, copy=False)))
+        run = lambda c: self.session.run(self.output_names, {self.input_name: c})  # noqa: E731
+        if parallel > 1 and len(chunks) > 1:
+            return [(k, o) for (k, _), o in zip(chunks, self._pool(parallel).map(run, [c for _, c in chunks]))]
+        return [(k, run(c)) for k, c in chunks]
+
+    _pools: dict = {}
+
+    @classmethod
+    def _pool(cls, n: int):
+        """One shared thread pool per size (threads live as long as the process; idle ones sleep)."""
+        from concurrent.futures import ThreadPoolExecutor
+
+        if n not in cls._pools:
+            cls._pools[n] = ThreadPoolExecutor(n, thread_name_prefix="radarcal-onnx")
+        return cls._pools[n]
+
+
+def _planes(im: np.ndarray, out: np.ndarray, channels: int) -> None:
+    """One BGR (or grey) uint8 image -> ``out`` (C, H, W) float32 in 0..1: RGB planes, or grey for C = 1."""
+    import cv2
+
+    if channels == 1:
+        g = im if im.ndim == 2 else cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
+        np.multiply(g, 1.0 / 255.0, out=out[0], casting="unsafe")
+    elif im.ndim == 2:  # a mono camera's frame into a colour model: the same plane three times
+        np.multiply(im, 1.0 / 255.0, out=out[0], casting="unsafe")
+        out[1:] = out[0]
+    else:
+        for c in range(3):  # RGB planes from BGR
+            np.multiply(im[:, :, 2 - c], 1.0 / 255.0, out=out[c], casting="unsafe")
 
 
 def to_tensor(images: list[np.ndarray], channels: int = 3) -> np.ndarray:
     """BGR uint8 images of one size -> n x C x H x W float32 in 0..1 (RGB, or grey for C = 1). One scaled copy per
     channel plane (6x faster than a transposed ``astype`` of the whole stack)."""
-    import cv2
-
     h, w = images[0].shape[:2]
     x = np.empty((len(images), channels, h, w), np.float32)
     for i, im in enumerate(images):
-        if channels == 1:
-            g = im if im.ndim == 2 else cv2.cvtColor(im, cv2.COLOR_BGR2GRAY)
-            np.multiply(g, 1.0 / 255.0, out=x[i, 0], casting="unsafe")
-        elif im.ndim == 2:  # a mono camera's frame into a colour model: the same plane three times
-            np.multiply(im, 1.0 / 255.0, out=x[i, 0], casting="unsafe")
-            x[i, 1:] = x[i, 0]
-        else:
-            for c in range(3):  # RGB planes from BGR
-                np.multiply(im[:, :, 2 - c], 1.0 / 255.0, out=x[i, c], casting="unsafe")
+        _planes(im, x[i], channels)
     return x
+
+
+@dataclass
+class Prepared:
+    """One frame letterboxed for a detector (:meth:`OnnxDetector.prepare`): ``tensor`` (C, H, W) float32, the
+    letterbox ``scale`` and ``pad`` (x, y), the frame's ``hw``, and the frame itself (``image``)."""
+
+    image: np.ndarray
+    tensor: np.ndarray
+    scale: float
+    pad: tuple[float, float]
+    hw: tuple[int, int]
 
 
 class OnnxDetector:
@@ -265,8 +315,12 @@ class OnnxDetector:
 
     def __init__(self, model_path: str | os.PathLike, class_names: list[str] | None = None, conf_thres: float = 0.25, iou_thres: float = 0.45,
                  threads: int = 0, spin: bool = False, layout: str | None = None, providers=None, anchors: dict | None = None,
-                 names_source: str | os.PathLike | None = None, max_det: int = 300, what: str = "ONNX model"):  # fmt: skip
+                 names_source: str | os.PathLike | None = None, max_det: int = 300, what: str = "ONNX model", parallel: int = 1):  # fmt: skip
         self.model = OnnxModel(model_path, what, threads, spin, providers)
+        self.parallel = max(int(parallel), 1)  # concurrent runs of a fixed-batch model over several images (run_batch)
+        self._ahead: dict[int, Prepared] = {}
+        self._ahead_lock = threading.Lock()
+        self._local = threading.local()
         self.path = self.model.path
         self.session = self.model.session
         self.input_name = self.model.input_name
@@ -297,31 +351,61 @@ class OnnxDetector:
         lay = self.layout.name + (f"/{self.layout.variant}" if self.layout.variant else "")
         return f"{self.path.name}: {lay}, input {self.input_size[1]}x{self.input_size[0]}, {len(self.class_names)} classes, {'/'.join(p.replace('ExecutionProvider', '') for p in self.model.providers)}"
 
-    def preprocess(self, images: list[np.ndarray]) -> tuple[np.ndarray, list[tuple[float, tuple[float, float], tuple[int, int]]]]:
+    def prepare(self, image: np.ndarray, scaleup: bool = True) -> Prepared:
+        """Letterbox + float tensor of one BGR frame for this detector (a per-thread uint8 buffer, no padding copy)."""
         import cv2
 
-        lbs, geo = [], []
-        for im in images:
-            if im.ndim == 3 and im.shape[2] != 3:  # BGRA / single-channel 3-D frames
-                im = cv2.cvtColor(im, cv2.COLOR_BGRA2BGR) if im.shape[2] == 4 else im[:, :, 0]
-            lb, r, pad = letterbox(im, self.input_size)
-            lbs.append(lb)
-            geo.append((r, pad, im.shape[:2]))
-        return to_tensor(lbs, self.model.channels), geo
+        im = image
+        if im.ndim == 3 and im.shape[2] != 3:  # BGRA / single-channel 3-D frames
+            im = cv2.cvtColor(im, cv2.COLOR_BGRA2BGR) if im.shape[2] == 4 else im[:, :, 0]
+        h, w = self.input_size
+        key = (h, w) + im.shape[2:]
+        buf = getattr(self._local, "buf", None)
+        if buf is None or buf.shape != key:
+            buf = self._local.buf = np.empty(key, np.uint8)
+        lb, r, pad = letterbox(im, self.input_size, scaleup=scaleup, out=buf if im.dtype == np.uint8 else None)
+        t = np.empty((self.model.channels, h, w), np.float32)
+        _planes(lb, t, self.model.channels)
+        return Prepared(image, t, r, pad, im.shape[:2])
+
+    def prepare_ahead(self, image: np.ndarray) -> np.ndarray:
+        """Letterbox ``image`` now (e.g. in the frame-prefetch thread) and keep it for the next :meth:`detect_batch`
+        given the same image object, which then skips its preprocessing. Returns ``image``. At most 16 are kept."""
+        p = self.prepare(image)
+        with self._ahead_lock:  # the prefetch thread adds while the detect thread takes
+            while len(self._ahead) >= 16:
+                self._ahead.pop(next(iter(self._ahead)), None)
+            self._ahead[id(image)] = p
+        return image
+
+    def _take(self, image) -> Prepared | None:
+        if isinstance(image, Prepared):
+            return image
+        with self._ahead_lock:
+            p = self._ahead.pop(id(image), None)
+        return p if p is not None and p.image is image else None
+
+    def preprocess(self, images: list) -> tuple[np.ndarray, list[tuple[float, tuple[float, float], tuple[int, int]]]]:
+        """n frames (arrays, or :class:`Prepared`) -> n x C x H x W tensor and per frame (scale, pad, hw)."""
+        h, w = self.input_size
+        x = np.empty((len(images), self.model.channels, h, w), np.float32)
+        geo = []
+        for i, im in enumerate(images):
+            p = self._take(im)
+            if p is None:
+                p = self.prepare(im)
+            x[i] = p.tensor
+            geo.append((p.scale, p.pad, p.hw))
+        return x, geo
 
     def __call__(self, images):
-        if isinstance(images, np.ndarray) and (images.ndim == 2 or (images.ndim == 3 and images.shape[2] in (1, 3, 4))):
+        if isinstance(images, Prepared) or (isinstance(images, np.ndarray) and (images.ndim == 2 or (images.ndim == 3 and images.shape[2] in (1, 3, 4)))):
             return self.detect_batch([images])[0]
         return self.detect_batch(list(images))
 
-    def detect_batch(self, images: list[np.ndarray]) -> list[list[Detection]]:
-        t0 = time.perf_counter()
-        if not images:
-            self.last_timings_ms = {"preprocess": 0.0, "infer": 0.0, "decode": 0.0}
-            return []
-        x, geo = self.preprocess(images)
+    def _infer(self, x: np.ndarray, geo) -> tuple[list[list[Detection]], float, float]:
         t1 = time.perf_counter()
-        runs = self.model.run_batch(x)
+        runs = self.model.run_batch(x, self.parallel)
         t2 = time.perf_counter()
         decoded = []
         try:
@@ -330,7 +414,76 @@ class OnnxDetector:
         except (ValueError, IndexError, KeyError) as e:
             raise InputError(self.path, f"output does not fit the {self.layout.name} layout ({e})") from None
         out = [self.postprocess(b, s, c, *g) for (b, s, c), g in zip(decoded, geo)]
-        self.last_timings_ms = {"preprocess": (t1 - t0) * 1e3, "infer": (t2 - t1) * 1e3, "decode": (time.perf_counter() - t2) * 1e3}
+        return out, (t2 - t1) * 1e3, (time.perf_counter() - t2) * 1e3
+
+    def detect_batch(self, images: list) -> list[list[Detection]]:
+        """Detections per frame (BGR arrays or :class:`Prepared`), in frame pixels."""
+        t0 = time.perf_counter()
+        if not images:
+            self.last_timings_ms = {"preprocess": 0.0, "infer": 0.0, "decode": 0.0}
+            return []
+        x, geo = self.preprocess(images)
+        pre = (time.perf_counter() - t0) * 1e3
+        out, infer, dec = self._infer(x, geo)
+        self.last_timings_ms = {"preprocess": pre, "infer": infer, "decode": dec}
+        return out
+
+    def detect_regions(self, image: np.ndarray, regions, full: list[Detection] | None = None, scaleup: bool = False, edge_px: float = 2.0) -> list[Detection]:
+        """Detections inside regions of interest of one (large) frame, in frame pixels. Each region (K,4) xyxy frame
+        pixels is cut out and letterboxed on its own, never enlarged unless ``scaleup`` (a far robot keeps its native
+        pixels; a region larger than the input is shrunk to fit), all regions in one batched run (``parallel`` runs
+        for a fixed-batch model). A box within ``edge_px`` of a region border that is not the frame's border is a
+        robot cut by the window and dropped. Region boxes found twice (overlapping windows) go through class-aware
+        NMS; with ``full`` (this frame's full-frame detections) the two are merged: a full-frame box of the same
+        label overlapping a region box (IoU > ``iou_thres``) gives way to it. ``last_timings_ms``: preprocess /
+        infer / decode / merge and ``regions`` (count)."""
+        t0 = time.perf_counter()
+        H, W = image.shape[:2]
+        wins = []
+        for x0, y0, x1, y1 in np.asarray(regions, float).reshape(-1, 4):
+            a, b = int(max(np.floor(x0), 0)), int(max(np.floor(y0), 0))
+            c, d = int(min(np.ceil(x1), W)), int(min(np.ceil(y1), H))
+            if c - a >= 2 and d - b >= 2:
+                wins.append((a, b, c, d))
+        found: list[Detection] = []
+        pre = infer = dec = 0.0
+        if wins:
+            h, w = self.input_size
+            x = np.empty((len(wins), self.model.channels, h, w), np.float32)
+            geo = []
+            for i, (a, b, c, d) in enumerate(wins):
+                p = self.prepare(image[b:d, a:c], scaleup=scaleup)
+                x[i] = p.tensor
+                geo.append((p.scale, p.pad, p.hw))
+            pre = (time.perf_counter() - t0) * 1e3
+            per, infer, dec = self._infer(x, geo)
+            for (a, b, c, d), dets in zip(wins, per):
+                cw, ch = c - a, d - b
+                for det in dets:
+                    x1, y1, x2, y2 = det.xyxy
+                    cut = (a > 0 and x1 <= edge_px) or (b > 0 and y1 <= edge_px) or (c < W and x2 >= cw - 1 - edge_px) or (d < H and y2 >= ch - 1 - edge_px)
+                    if not cut:
+                        det.xyxy = det.xyxy + np.array([a, b, a, b], np.float64)
+                        found.append(det)
+        t3 = time.perf_counter()
+        if found:
+            from radarcal.runtime.yolo_layouts import class_aware_nms
+
+            boxes = np.array([d.xyxy for d in found], np.float32)
+            keep = class_aware_nms(boxes, np.array([d.score for d in found], np.float32), np.array([d.class_id for d in found]), self.iou_thres, self.max_det)
+            found = [found[i] for i in keep]
+        out = found
+        if full:
+            rb = np.array([d.xyxy for d in found]).reshape(-1, 4)
+            rl = np.array([d.label for d in found], dtype=object)
+            kept = []
+            for d in full:
+                same = rl == d.label
+                if same.any() and (_iou(d.xyxy, rb[same]) > self.iou_thres).any():
+                    continue
+                kept.append(d)
+            out = sorted(kept + found, key=lambda d: -d.score)
+        self.last_timings_ms = {"preprocess": pre, "infer": infer, "decode": dec, "merge": (time.perf_counter() - t3) * 1e3, "regions": float(len(wins))}
         return out
 
     def postprocess(self, boxes, scores, cls, r: float, pad: tuple[float, float], hw: tuple[int, int]) -> list[Detection]:
@@ -344,6 +497,58 @@ class OnnxDetector:
             label = self.class_names[c] if 0 <= c < len(self.class_names) else f"class_{c}"
             out.append(Detection(b.astype(np.float64), label, float(s), c))
         return out
+
+
+def _iou(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """IoU of one xyxy box with (K,4) boxes."""
+    iw = np.clip(np.minimum(box[2], boxes[:, 2]) - np.maximum(box[0], boxes[:, 0]), 0, None)
+    ih = np.clip(np.minimum(box[3], boxes[:, 3]) - np.maximum(box[1], boxes[:, 1]), 0, None)
+    inter = iw * ih
+    union = (box[2] - box[0]) * (box[3] - box[1]) + (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1]) - inter
+    return inter / np.maximum(union, 1e-12)
+
+
+def tile_grid(hw: tuple[int, int], tile_hw: int | tuple[int, int] = 640, overlap: int = 64, align: int = 32) -> np.ndarray:
+    """(K,4) xyxy windows of ``tile_hw`` (h, w) covering a frame of ``hw`` (h, w) pixels, neighbours overlapping by at
+    least ``overlap`` pixels (more than a far robot is wide, so each one lies whole in some window). Window origins
+    are multiples of ``align`` (the network's largest stride: every tile sees the same grid phase) except the last
+    one of a row or column, which ends at the frame's edge."""
+    H, W = hw
+    th, tw = (tile_hw, tile_hw) if isinstance(tile_hw, int) else tile_hw
+
+    def starts(n_px: int, t: int) -> np.ndarray:
+        if n_px <= t:
+            return np.array([0])
+        k = max(int(np.ceil((n_px - t) / max(t - overlap - align, 1))) + 1, 2)  # floor to align loses < align of overlap
+        step = (n_px - t) / (k - 1)
+        s = (np.floor(np.arange(k - 1) * step / align) * align).astype(int)
+        return np.append(s, n_px - t)
+
+    xs, ys = starts(W, tw), starts(H, th)
+    gx, gy = np.meshgrid(xs, ys)
+    x0, y0 = gx.ravel(), gy.ravel()
+    return np.column_stack([x0, y0, np.minimum(x0 + tw, W), np.minimum(y0 + th, H)]).astype(float)
+
+
+def plan_rois(points_uv, hw: tuple[int, int], tile_hw: int | tuple[int, int] = 640, max_rois: int = 4, margin: float = 48.0) -> np.ndarray:
+    """Detector windows (K,4) xyxy of ``tile_hw`` around image points ``points_uv`` (N,2), e.g. far tracks projected
+    into the frame, in priority order (first = most wanted): a point already ``margin`` pixels inside a chosen
+    window is covered by it; at most ``max_rois`` windows, each shifted to lie inside the frame."""
+    H, W = hw
+    th, tw = (tile_hw, tile_hw) if isinstance(tile_hw, int) else tile_hw
+    tw, th = min(tw, W), min(th, H)
+    wins: list[tuple[float, float, float, float]] = []
+    for u, v in np.asarray(points_uv, float).reshape(-1, 2):
+        if not (np.isfinite(u) and np.isfinite(v)) or not (0 <= u < W and 0 <= v < H):
+            continue
+        if any(a + margin <= u <= c - margin and b + margin <= v <= d - margin for a, b, c, d in wins):
+            continue
+        if len(wins) >= max_rois:
+            break
+        a = float(np.clip(np.round(u - tw / 2), 0, W - tw))
+        b = float(np.clip(np.round(v - th / 2), 0, H - th))
+        wins.append((a, b, a + tw, b + th))
+    return np.array(wins, float).reshape(-1, 4)
 
 
 @dataclass

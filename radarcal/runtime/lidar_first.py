@@ -26,7 +26,9 @@ from radarcal.runtime.clusters import ClusterParams, cluster_points
 from radarcal.runtime.identity import add_votes, assign_labels, match_boxes, project_tracks, visible_parts
 from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Track3D, Tracker3D  # noqa: F401
 
-__all__ = ["LidarFirstConfig", "LidarFirst", "point_times"]
+__all__ = ["LidarFirstConfig", "LidarFirst", "point_times", "fuse_fixes", "LEGIBLE_PX"]
+
+LEGIBLE_PX = 64.0  # box height (px) from which a robot's armour number (~1/4 of it) counts as fully legible
 
 
 @dataclass
@@ -148,57 +150,84 @@ class LidarFirst:
         track go to ``locate_boxes(indices) -> (p_field (K,3), sigma (K,), source (K,))`` (None: LiDAR only).
         Returns the confirmed and lost tracks with evidence (:attr:`Track3D.evidence`) predicted to ``t``
         (``tr.last_box``: the box matched this frame)."""
+        return self.frame_views(t, [(None, t, boxes, labels, scores, locate_boxes)])
+
+    def frame_views(self, t: float, views: list[tuple]) -> list[Track3D]:
+        """Frames of several cameras (issue #19), in time order: ``(view, t_k, boxes, labels, scores, locate_boxes)``
+        per camera, ``view`` with ``camera``, ``T_cam_field``, ``pad_px``, ``primary`` (None: this object's camera).
+        Each camera's boxes are matched with the tracks at its own frame time; box-only fixes of several cameras on
+        one robot (same label within ``0.5 m + 2 sigma``, or another number within 0.3 m: a misread) become one
+        inverse-variance weighted fix. :attr:`last_boxes`: track id -> (view index, box index) of its box."""
         tk = self.tracker
-        for tr in tk.tracks:
-            tr.last_box = None
-        matched_boxes: set[int] = set()
-        self.protect_boxes = boxes if len(boxes) else None
-        if self.camera is not None and len(boxes):
-            trs, lo, hi = self.track_hulls(t)
-            if trs:
-                full, depth = project_tracks(self.camera, self.T_cam_field, lo, hi)
-                vis, _ = visible_parts(full, depth)
-                for k, j, q in match_boxes(vis, boxes, self.pad_px):
-                    tr = trs[k]
-                    tr.last_box = j
-                    matched_boxes.add(j)
-                    add_votes(tr.votes, labels[j], float(scores[j]) * min(1.0, q + 0.3))
-        # a box matched to a track also gives a box-depth fix: the camera ray is not turned by the LiDAR-camera
-        # rotation error, so near the track's prediction it is the better measurement and both update the filter;
-        # one far from the prediction took its depth from something else (a robot in front) and is ignored
-        if matched_boxes and locate_boxes is not None and self.fuse_box_depth:
-            idx = sorted(matched_boxes)
-            p, sig, src = locate_boxes(idx)
-            for n, j in enumerate(idx):
-                tr = next(o for o in tk.tracks if o.last_box == j)
-                if str(src[n]) != "depth" or not np.all(np.isfinite(p[n, :2])) or tr.aerial:
-                    continue
-                d = float(np.linalg.norm(tr.x[:2] + tr.x[2:] * (t - tr.t) - p[n, :2]))
-                if d <= 0.35 + 2.0 * np.hypot(tr.sigma, float(sig[n])):
-                    tk._update(tr, p[n, :2], float(sig[n]), t, tr.z, "depth")
-                    tr.n_box, tr.t_box = tr.n_box + 1, t
-        # box-only fixes for the boxes no LiDAR track explains
-        rest = [j for j in range(len(boxes)) if j not in matched_boxes]
-        if rest and locate_boxes is not None:
-            p, sig, src = locate_boxes(rest)
-            holder = {tr.label: tr for tr in tk.tracks if tr.label is not None}
-            for n, j in enumerate(rest):
-                if str(src[n]) == "none" or not np.all(np.isfinite(p[n, :2])):
-                    continue
-                tr = holder.get(labels[j])
-                if tr is not None and t - tr.t_lidar < 0.3:
-                    continue  # the LiDAR sees that robot: a box-only fix would only add the box path's errors
-                # a LiDAR track where the box puts the robot (its projection missed the box): identity by position
-                near = [o for o in tk.tracks if o.n_lidar and t - o.t_lidar < 0.3 and o.label in (None, labels[j])
-                        and np.linalg.norm(o.x[:2] + o.x[2:] * (t - o.t) - p[n, :2]) < 0.8]  # fmt: skip
-                if near:
-                    near[0].last_box = j
-                    add_votes(near[0].votes, labels[j], 0.5 * float(scores[j]))
-                    continue
-                got = tk.update_box(labels[j], p[n, :2], float(sig[n]), t, float(p[n, 2]), str(src[n]), tr)
-                if got is not None:
-                    got.last_box = j
-                    add_votes(got.votes, labels[j], float(scores[j]))
+        self.last_boxes: dict[int, tuple[int, int]] = {}
+        fixes: list[dict] = []
+        votes: dict[int, tuple] = {}  # track id -> (track, [(label, weight)]): one vote update per track and tick
+        if any(v is None or v.primary for v, *_ in views):
+            self.protect_boxes = None
+        for k, (view, tv, boxes, labels, scores, locate_boxes) in enumerate(views):
+            camera, T_cam_field, pad = (self.camera, self.T_cam_field, self.pad_px) if view is None else (view.camera, view.T_cam_field, view.pad_px)
+            for tr in tk.tracks:
+                tr.last_box = None
+            matched_boxes: set[int] = set()
+            if view is None or view.primary:
+                self.protect_boxes = boxes if len(boxes) else None
+            if camera is not None and len(boxes):
+                trs, lo, hi = self.track_hulls(tv)
+                if trs:
+                    full, depth = project_tracks(camera, T_cam_field, lo, hi)
+                    vis, _ = visible_parts(full, depth)
+                    for q_, j, q in match_boxes(vis, boxes, pad):
+                        tr = trs[q_]
+                        tr.last_box = j
+                        self.last_boxes[tr.id] = (k, j)
+                        matched_boxes.add(j)
+                        votes.setdefault(tr.id, (tr, []))[1].append((labels[j], float(scores[j]) * min(1.0, q + 0.3), float(boxes[j, 3] - boxes[j, 1])))
+            # a box matched to a track also gives a box-depth fix: the camera ray is not turned by the LiDAR-camera
+            # rotation error, so near the track's prediction it is the better measurement and both update the filter;
+            # one far from the prediction took its depth from something else (a robot in front) and is ignored
+            if matched_boxes and locate_boxes is not None and self.fuse_box_depth:
+                idx = sorted(matched_boxes)
+                p, sig, src = locate_boxes(idx)
+                for n, j in enumerate(idx):
+                    tr = next(o for o in tk.tracks if o.last_box == j)
+                    if str(src[n]) != "depth" or not np.all(np.isfinite(p[n, :2])) or tr.aerial:
+                        continue
+                    d = float(np.linalg.norm(tr.x[:2] + tr.x[2:] * (tv - tr.t) - p[n, :2]))
+                    if d <= 0.35 + 2.0 * np.hypot(tr.sigma, float(sig[n])):
+                        tk._update(tr, p[n, :2], float(sig[n]), tv, tr.z, "depth")
+                        tr.n_box, tr.t_box = tr.n_box + 1, tv
+            rest = [j for j in range(len(boxes)) if j not in matched_boxes]
+            if rest and locate_boxes is not None:
+                p, sig, src = locate_boxes(rest)
+                for n, j in enumerate(rest):
+                    if str(src[n]) != "none" and np.all(np.isfinite(p[n, :2])):
+                        fixes.append({"k": k, "j": j, "p": p[n], "sigma": float(sig[n]), "source": str(src[n]), "label": labels[j], "score": float(scores[j]), "t": tv,
+                                      "h": float(boxes[j, 3] - boxes[j, 1])})  # fmt: skip
+        # box-only fixes for the boxes no LiDAR track explains (one per robot however many cameras box it)
+        holder = {tr.label: tr for tr in tk.tracks if tr.label is not None}
+        for fx in fuse_fixes(fixes):
+            tf, label, pf = fx["t"], fx["label"], fx["p"]
+            tr = holder.get(label)
+            if tr is not None and tf - tr.t_lidar < 0.3:
+                continue  # the LiDAR sees that robot: a box-only fix would only add the box path's errors
+            # a LiDAR track where the box puts the robot (its projection missed the box): identity by position
+            near = [o for o in tk.tracks if o.n_lidar and tf - o.t_lidar < 0.3 and o.label in (None, label)
+                    and np.linalg.norm(o.x[:2] + o.x[2:] * (tf - o.t) - pf[:2]) < 0.8]  # fmt: skip
+            got = near[0] if near else tk.update_box(label, pf[:2], fx["sigma"], tf, float(pf[2]), fx["source"], tr)
+            if got is None:
+                continue
+            got.last_box = fx["j"] if fx["k"] == len(views) - 1 else got.last_box
+            self.last_boxes[got.id] = (fx["k"], fx["j"])
+            votes.setdefault(got.id, (got, []))[1].extend((lab, (0.5 if near else 1.0) * sc, h) for lab, sc, h in fx["votes"])
+        for tr, vs in votes.values():
+            # decay once per tick however many cameras boxed the track (the votes keep their memory); when several
+            # cameras boxed it, each vote counts by how legible the robot is in that camera relative to the best one
+            # (a far robot's number in a few pixels of the wide camera is often misread, in the tele it is not)
+            leg = np.clip(np.array([v[2] for v in vs]) / LEGIBLE_PX, 0.25, 1.0)
+            w = np.array([v[1] for v in vs]) * (leg / leg.max())
+            add_votes(tr.votes, vs[0][0], float(w[0]))
+            for (lab, _, _), wi in zip(vs[1:], w[1:]):
+                tr.votes[lab] = tr.votes.get(lab, 0.0) + float(wi)
         tk.step(t)
         names = assign_labels([tr.votes for tr in tk.tracks], live=[tr.state != LOST for tr in tk.tracks])
         for tr, lab in zip(tk.tracks, names):
@@ -212,3 +241,44 @@ class LidarFirst:
         if t - tr.t_box <= self.cfg.seen_box_s:
             return tr.source if tr.source in ("depth", "ground") else "depth"
         return "predicted"
+
+
+def fuse_fixes(fixes: list[dict], same_label_m: float = 0.5, other_label_m: float = 0.3) -> list[dict]:
+    """Box-only fixes (dicts: k camera index, j box, p (3,), sigma, source, label, score, t) -> one fix per robot.
+
+    Fixes of different cameras join when they carry the same label and lie within ``same_label_m + 2 sigma``, or a
+    label of the same colour within ``other_label_m`` (a misread number); each group becomes one fix at the
+    inverse-variance weighted mean (sigma ``1 / sqrt(sum 1/sigma^2)``), labelled by the largest score / sigma^2 sum,
+    carrying every member's (label, score) vote. Fixes of one camera never join (two boxes are two robots)."""
+    groups: list[list[dict]] = []
+    for fx in sorted(fixes, key=lambda f: f["sigma"]):
+        best, best_d = None, np.inf
+        for g in groups:
+            if any(m["k"] == fx["k"] for m in g):
+                continue
+            w = np.array([1.0 / m["sigma"] ** 2 for m in g])
+            pg = np.sum([m["p"][:2] * wi for m, wi in zip(g, w)], axis=0) / w.sum()
+            d = float(np.linalg.norm(pg - fx["p"][:2]))
+            same = any(m["label"] == fx["label"] for m in g)
+            colour = any(str(m["label"]).split("_")[0] == str(fx["label"]).split("_")[0] for m in g)
+            gate = same_label_m + 2.0 * np.hypot(1.0 / np.sqrt(w.sum()), fx["sigma"]) if same else (other_label_m if colour else -1.0)
+            if d <= gate and d < best_d:
+                best, best_d = g, d
+        if best is None:
+            groups.append([fx])
+        else:
+            best.append(fx)
+    out = []
+    for g in sorted(groups, key=lambda g: min((m["k"], m["j"]) for m in g)):
+        if len(g) == 1:
+            out.append({**g[0], "votes": [(g[0]["label"], g[0]["score"], g[0].get("h", LEGIBLE_PX))]})
+            continue
+        w = np.array([1.0 / m["sigma"] ** 2 for m in g])
+        p = np.sum([m["p"] * wi for m, wi in zip(g, w)], axis=0) / w.sum()
+        by_label: dict[str, float] = {}
+        for m, wi in zip(g, w):
+            by_label[m["label"]] = by_label.get(m["label"], 0.0) + m["score"] * wi
+        lead = max(g, key=lambda m: (m["label"] == max(by_label, key=by_label.get), 1.0 / m["sigma"]))
+        out.append({**lead, "p": p, "sigma": float(1.0 / np.sqrt(w.sum())), "source": "depth" if any(m["source"] == "depth" for m in g) else "ground",
+                    "label": max(by_label, key=by_label.get), "t": max(m["t"] for m in g), "votes": [(m["label"], m["score"], m.get("h", LEGIBLE_PX)) for m in g]})  # fmt: skip
+    return out

@@ -95,6 +95,7 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
     tty = sys.stderr.isatty()
     t_start = time.perf_counter()
     last = None
+    last_missing = None
     blas = limit_blas_threads(1)
     blas.__enter__()
     try:
@@ -150,7 +151,9 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             last = res
             n += 1
             now = time.perf_counter()
-            if status and now - last_status > (0.5 if tty else 5.0):
+            missing_changed = res.missing != last_missing  # a camera unplugged or back (several cameras): say so at once
+            last_missing = res.missing
+            if status and (now - last_status > (0.5 if tty else 5.0) or missing_changed):
                 last_status = now
                 rec = timer.recent()
                 stages = " ".join(f"{k} {rec.get(k, 0):.1f}" for k in STAGES)

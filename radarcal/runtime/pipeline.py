@@ -28,7 +28,26 @@ from radarcal.runtime.fusion import CloudQueue, SurfaceFilter
 from radarcal.runtime.localise import Localiser
 from radarcal.runtime.tracks import TrackManager
 
-__all__ = ["RunConfig", "RobotOut", "FrameResult", "Pipeline", "LOCALISE_MODES"]
+__all__ = ["RunConfig", "RobotOut", "FrameResult", "Pipeline", "CameraView", "LOCALISE_MODES", "fuse_by_label"]
+
+
+@dataclass
+class CameraView:
+    """One camera of the station: its projection, field pose, localiser and depth images (cloud queue)."""
+
+    name: str
+    camera: object  # radarcal.Camera
+    T_field_cam: np.ndarray
+    localiser: Localiser
+    queue: CloudQueue | None
+    pad_px: float
+    primary: bool
+
+    @property
+    def T_cam_field(self) -> np.ndarray:
+        from radarcal.geometry import invert_T
+
+        return invert_T(self.T_field_cam)
 
 @dataclass
 class RobotOut:
@@ -85,11 +104,17 @@ class FrameResult:
     sentry: dict | None
     hero_range_m: float | None
     timings_ms: dict[str, float]
+    cameras: dict[str, str] | None = None  # several cameras: camera -> frame name used in this result
+    missing: list[str] | None = None  # several cameras: those that delivered nothing lately
 
     def to_dict(self) -> dict:
-        return {"t": round(self.t, 4), "frame": self.frame, "robots": [r.to_dict() for r in self.robots], "sentry": self.sentry,
-                "hero_range_m": None if self.hero_range_m is None else round(self.hero_range_m, 3),
-                "latency_ms": {k: round(v, 3) for k, v in self.timings_ms.items()}}  # fmt: skip
+        d = {"t": round(self.t, 4), "frame": self.frame, "robots": [r.to_dict() for r in self.robots], "sentry": self.sentry,
+             "hero_range_m": None if self.hero_range_m is None else round(self.hero_range_m, 3),
+             "latency_ms": {k: round(v, 3) for k, v in self.timings_ms.items()}}  # fmt: skip
+        if self.cameras is not None:
+            d["cameras"] = self.cameras
+            d["missing_cameras"] = self.missing or []
+        return d
 
 
 def _team_of(label: str | None) -> str | None:
@@ -106,7 +131,10 @@ def _number_of(label: str | None) -> int | None:
 class Pipeline:
     """Per-frame core: clouds in, detections in, located + tracked robots out."""
 
-    def __init__(self, bundle: Bundle, camera: str, lidar: str | None, cfg: RunConfig):
+    def __init__(self, bundle: Bundle, camera: str | list[str], lidar: str | None, cfg: RunConfig):
+        """``camera``: one name, or several (the first is the primary: its attributes below; :attr:`views` holds all)."""
+        cameras = [camera] if isinstance(camera, str) else list(camera)
+        camera = cameras[0]
         self.cfg = cfg
         self.camera = bundle.camera(camera)
         self.T_field_cam = bundle.T("field", camera)
@@ -137,13 +165,30 @@ class Pipeline:
             self.lidar_first = LidarFirst(self.T_field_cam @ T_cam_lidar, self.field_model, lf_cfg, camera=self.camera, T_field_cam=self.T_field_cam)
             if cfg.localise == "lidar":
                 self.queue = None  # no box path
+        self.views: dict[str, CameraView] = {camera: CameraView(camera, self.camera, self.T_field_cam, self.localiser, self.queue,
+                                                                 self.lidar_first.pad_px if self.lidar_first is not None else 0.0, True)}  # fmt: skip
+        for name in cameras[1:]:
+            self.views[name] = self._view(bundle, name, lidar)
+
+    def _view(self, bundle: Bundle, name: str, lidar: str | None) -> "CameraView":
+        """Another camera: its own projection, field pose, localiser and depth images of the same clouds."""
+        cam, T_field_cam = bundle.camera(name), bundle.T("field", name)
+        queue = None
+        if self.queue is not None:
+            T_cam_lidar = bundle.T(name, lidar)
+            # the surface filter works in the LiDAR frame (T_field_lidar): one for every camera
+            queue = CloudQueue(cam, T_cam_lidar, self.cfg.cloud_queue_points, self.cfg.cloud_queue_age_s, point_filter=self.queue.point_filter)
+        loc = Localiser(cam, T_field_cam, self.field_model, self.cfg.robot_radius_m, self.cfg.visible_depth_factor)
+        pad = 3.0 + cam.fx * np.deg2rad(self.lidar_first.cfg.sigma_rot_deg) if self.lidar_first is not None else 0.0
+        return CameraView(name, cam, T_field_cam, loc, queue, pad, False)
 
     def add_cloud(self, t: float, points: np.ndarray) -> None:
         """One cloud (LiDAR frame, points in firing order) with its time on the camera clock (arrival)."""
         if not len(points):
             return
-        if self.queue is not None:
-            self.queue.push(t, points)
+        for v in self.views.values():
+            if v.queue is not None:
+                v.queue.push(t, points)
         if self.lidar_first is not None:
             self.lidar_first.add_cloud(t, points)
         if self.queue is not None or self.lidar_first is not None:
@@ -154,27 +199,33 @@ class Pipeline:
         b = np.asarray(d.xyxy, float)
         return b.shape == (4,) and bool(np.all(np.isfinite(b))) and b[2] > b[0] and b[3] > b[1] and bool(np.isfinite(d.score)) and d.score >= min_score
 
-    def _box_depths(self, boxes: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+    def _box_depths(self, boxes: np.ndarray, t: float, queue: CloudQueue | None = None) -> tuple[np.ndarray, np.ndarray]:
         """LiDAR depth (camera z) and its sigma for each box from the cloud queue (NaN: none); robots standing nearer
         (box bottom lower in the image) and overlapping a box hide part of it: their pixels are not this robot's."""
         depth = np.full(len(boxes), np.nan)
         dsig = np.full(len(boxes), np.nan)
-        if self.queue is None:
+        queue = self.queue if queue is None else queue
+        if queue is None:
             return depth, dsig
-        self.queue.expire(t)
+        queue.expire(t)
         for i in range(len(boxes)):
             b = boxes[i]
             front = (boxes[:, 3] > b[3] + 2) & (boxes[:, 0] < b[2]) & (boxes[:, 2] > b[0]) & (boxes[:, 1] < b[3]) & (boxes[:, 3] > b[1])
-            bd = self.queue.depth_in_box(b, t, max_age_s=self.cfg.depth_max_age_s, exclude=boxes[front] if front.any() else None)
+            bd = queue.depth_in_box(b, t, max_age_s=self.cfg.depth_max_age_s, exclude=boxes[front] if front.any() else None)
             if bd is not None:
                 depth[i], dsig[i] = bd.depth, bd.sigma
         return depth, dsig
 
-    def process(self, t: float, frame: str, detections: list[Detection], timings: dict[str, float] | None = None, team: str | None = None) -> FrameResult:
-        for d in detections:
+    def process(self, t: float, frame: str, detections, timings: dict[str, float] | None = None, team: str | None = None) -> FrameResult:
+        """``detections``: a list (the primary camera) or :class:`radarcal.runtime.multicam.ViewDetections` (several)."""
+        views = getattr(detections, "views", None)
+        for d in (detections if views is None else [d for v in views for d in v[3]]):
             if d.label:
                 self.dead[d.label] = bool(getattr(d, "dead", False))
-        res = (self._process_lidar_first if self.lidar_first is not None else self._process_box)(t, frame, detections, timings, team)
+        if views is not None:
+            res = self._process_views(t, frame, detections, timings, team)
+        else:
+            res = (self._process_lidar_first if self.lidar_first is not None else self._process_box)(t, frame, detections, timings, team)
         if any(self.dead.values()):
             for r in res.robots:
                 r.dead = bool(r.label and self.dead.get(r.label, False))
@@ -257,6 +308,87 @@ class Pipeline:
         team = team or self.cfg.team
         return FrameResult(t, frame, robots, self.sentry_guidance(robots, team), self.hero_range(robots, team), timings)
 
+    def _locator(self, view: CameraView, t: float, boxes: np.ndarray, fixes: dict):
+        """``locate_boxes(indices)`` of one camera frame (box depth from its depth images, else the ground ray)."""
+
+        def locate_boxes(idx: list[int]):
+            b = boxes[idx]
+            depth, dsig = self._box_depths(b, t, view.queue)
+            loc = view.localiser.locate(b, depth, dsig)
+            flat = (b[:, 3] - b[:, 1]) < self.cfg.ground_min_aspect * (b[:, 2] - b[:, 0])  # a hidden robot's top: no ground ray
+            loc.source[flat & (loc.source == "ground")] = "none"
+            for n, j in enumerate(idx):
+                fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
+            return loc.p_field, loc.sigma, loc.source
+
+        return locate_boxes
+
+    def _view_boxes(self, dets: list) -> tuple[np.ndarray, list, np.ndarray]:
+        dets = [d for d in dets if self._valid(d, self.cfg.min_score)]
+        return np.array([d.xyxy for d in dets], float).reshape(-1, 4), [d.label for d in dets], np.array([d.score for d in dets], float)
+
+    def _process_views(self, t: float, frame: str, vd, timings: dict[str, float] | None, team: str | None) -> FrameResult:
+        """Several cameras (issue #19): every camera frame of the tick at its own time, one output per robot."""
+        timings = dict(timings or {})
+        tic = time.perf_counter()
+        per_view = []
+        for cam, tv, _name, dets in vd.views:
+            if cam not in self.views:
+                raise ValueError(f"detections of camera {cam!r}, which this pipeline does not have ({', '.join(self.views)})")
+            boxes, labels, scores = self._view_boxes(dets)
+            per_view.append((self.views[cam], tv, boxes, labels, scores, {}))
+        cams = {cam: name for cam, _tv, name, _d in vd.views}
+        if self.lidar_first is None:
+            robots = self._views_box(t, per_view)
+        else:
+            auto = self.cfg.localise == "auto"
+            args = [(v, tv, b, lab, sc, self._locator(v, tv, b, fx) if auto else None) for v, tv, b, lab, sc, fx in per_view]
+            live = self.lidar_first.frame_views(t, args or [(None, t, np.zeros((0, 4)), [], np.zeros(0), None)])
+            robots = []
+            zs = self.localiser.surface_z(np.array([tr.x[:2] for tr in live]).reshape(-1, 2)) if live else []
+            for tr, zsurf in zip(live, zs):
+                src = self.lidar_first.seen_source(tr, t)
+                kj = self.lidar_first.last_boxes.get(tr.id)
+                fx = per_view[kj[0]][5].get(kj[1]) if kj is not None else None
+                score = float(per_view[kj[0]][4][kj[1]]) if kj is not None else None
+                z = tr.z if tr.aerial else float(zsurf)
+                robots.append(RobotOut(tr.label, np.array([tr.x[0], tr.x[1], z]), src, tr.sigma, fx[1] if fx else None, score,
+                                       fx[0] if fx is not None and src != "predicted" else None, tr.id, tr.state, tr.x[2:].copy(), tr.t_seen, dict(tr.votes)))  # fmt: skip
+            robots.sort(key=lambda r: (r.label is None, r.label or "", r.track_id or 0))
+        toc = time.perf_counter()
+        timings["depth"] = 0.0
+        timings["localise"] = (toc - tic) * 1e3
+        timings["track"] = 0.0
+        team = team or self.cfg.team
+        return FrameResult(t, frame, robots, self.sentry_guidance(robots, team), self.hero_range(robots, team), timings, cams, list(vd.missing))
+
+    def _views_box(self, t: float, per_view: list) -> list[RobotOut]:
+        """``--localise box`` with several cameras: per camera the best box per label, located; the same label
+        from several cameras fused (:func:`fuse_by_label`); one Kalman track per label."""
+        meas = []
+        for v, tv, boxes, labels, scores, _fx in per_view:
+            best: dict[str, int] = {}
+            for i, lab in enumerate(labels):
+                if lab not in best or scores[i] > scores[best[lab]]:
+                    best[lab] = i
+            idx = list(best.values())
+            b = boxes[idx]
+            depth, dsig = self._box_depths(b, tv, v.queue)
+            loc = v.localiser.locate(b, depth, dsig)
+            meas += [(labels[i], loc.p_field[n, :2], float(loc.sigma[n]), str(loc.source[n]), float(scores[i]), float(depth[n])) for n, i in enumerate(idx) if loc.source[n] != "none"]
+        fused = fuse_by_label(meas)
+        live = sorted(self.tracks.update(t, [(lab, xy, sg, src) for lab, xy, sg, src, _s, _d in fused]), key=lambda tr: tr.label)
+        seen = {m[0]: m for m in fused}
+        zs = self.localiser.surface_z(np.array([tr.xy for tr in live]).reshape(-1, 2)) if live else []
+        robots = []
+        for tr, z in zip(live, zs):
+            m = seen.get(tr.label)
+            measured = m is not None and tr.t_update == t
+            robots.append(RobotOut(tr.label, np.array([tr.xy[0], tr.xy[1], float(z)]), tr.source if measured else "predicted", tr.sigma,
+                                   m[5] if measured and np.isfinite(m[5]) else None, m[4] if m is not None else None,
+                                   np.r_[m[1], float(z)] if measured else None))  # fmt: skip
+        return robots
+
     # --- match functions ---------------------------------------------------------------------------------------------
     def sentry_guidance(self, robots: list[RobotOut], team: str) -> dict | None:
         """Nearest enemy to our sentry as a relative field vector (NUAA 2022: enemy - sentry, sent to the sentry)."""
@@ -303,3 +435,23 @@ class Pipeline:
         return out
 
 
+
+
+def fuse_by_label(meas: list[tuple], gate_m: float = 0.5) -> list[tuple]:
+    """Box-path measurements of several cameras ``(label, xy (2,), sigma, source, score, depth)`` -> one per label:
+    the inverse-variance weighted mean of those within ``gate_m + 3 sigma`` of the most precise one (the others,
+    another robot under a wrong label, are dropped)."""
+    by: dict[str, list[tuple]] = {}
+    for m in meas:
+        by.setdefault(m[0], []).append(m)
+    out = []
+    for lab, ms in by.items():
+        ms = sorted(ms, key=lambda m: m[2])
+        ref = ms[0]
+        keep = [m for m in ms if np.linalg.norm(np.asarray(m[1]) - ref[1]) <= gate_m + 3.0 * np.hypot(m[2], ref[2])]
+        w = np.array([1.0 / m[2] ** 2 for m in keep])
+        xy = np.sum([np.asarray(m[1]) * wi for m, wi in zip(keep, w)], axis=0) / w.sum()
+        src = "depth" if any(m[3] == "depth" for m in keep) else keep[0][3]
+        depth = next((m[5] for m in keep if np.isfinite(m[5])), np.nan)
+        out.append((lab, xy, float(1.0 / np.sqrt(w.sum())), src, max(m[4] for m in keep), depth))
+    return out

@@ -222,24 +222,47 @@ class DetectAhead:
     arrives, one frame ahead of the loop, so the networks of frame k+1 run while the loop fuses, tracks and writes
     frame k (onnxruntime releases the GIL). ``detect(frame)`` then returns that frame's result (an unreadable image
     re-raises its InputError there). Throughput becomes max(detector, rest of the loop) instead of their sum, for
-    one frame of extra latency. ``last_timings_ms``: the stage times measured in the worker for the frame returned."""
+    one frame of extra latency. ``workers`` > 1: that many frames are detected at once (each worker its own view of
+    the recogniser over the same onnxruntime sessions; give the models one intra-op thread each), for ``workers``
+    frames of latency: on 2 cores the most frames per second (measured in docs/runtime.md). ``last_timings_ms``:
+    the stage times measured in the worker for the frame returned."""
 
-    def __init__(self, recogniser: Recogniser, depth: int = 1):
+    def __init__(self, recogniser: Recogniser, depth: int = 1, workers: int = 1):
+        import threading
+
         self.recogniser = recogniser
-        self.depth = max(int(depth), 1)
+        self.workers = max(int(workers), 1)
+        self.depth = max(int(depth), self.workers)
         self._ready: dict[int, object] = {}
         self._last: dict[str, float] = {}
+        self._tls = threading.local()
+
+    def _own(self):
+        """This worker thread's recogniser: a shallow copy (own ``last_timings_ms``), sessions shared."""
+        if self.workers == 1:
+            return self.recogniser
+        rec = getattr(self._tls, "rec", None)
+        if rec is None:
+            import copy
+
+            rec = copy.copy(self.recogniser)
+            for k in ("robot", "armour", "number"):
+                if getattr(rec, k, None) is not None:
+                    setattr(rec, k, copy.copy(getattr(rec, k)))
+            self._tls.rec = rec
+        return rec
 
     def _run(self, frame):
-        dets = self.recogniser(frame.load())
-        return dets, dict(self.recogniser.last_timings_ms)
+        rec = self._own()
+        dets = rec(frame.load())
+        return dets, dict(rec.last_timings_ms)
 
     def frames(self, frames):
         from collections import deque
         from concurrent.futures import ThreadPoolExecutor
 
         pending: deque = deque()
-        with ThreadPoolExecutor(1, thread_name_prefix="radarcal-detect") as ex:
+        with ThreadPoolExecutor(self.workers, thread_name_prefix="radarcal-detect") as ex:
             try:
                 for f in frames:
                     pending.append((f, ex.submit(self._run, f)))

@@ -25,7 +25,7 @@ import os
 import numpy as np
 
 __all__ = ["make_fixed_boxes_model", "make_yolov5n_like", "count_macs", "layout_outputs", "make_fixed_outputs_model", "make_colour_armour_model",
-           "make_grey_level_classifier", "make_yolov8n_like", "make_number_classifier", "ultralytics_meta"]
+           "make_grey_level_classifier", "make_yolov8n_like", "make_number_classifier", "ultralytics_meta", "make_square_finder"]
 
 
 def _names_meta(model, names):
@@ -524,3 +524,45 @@ def make_number_classifier(path: str | os.PathLike, nc: int = 9, input_size: int
     _save(model, path, {"names": repr({i: n for i, n in enumerate(names or [str(i + 1) for i in range(nc)])}), "task": "classify",
                         "imgsz": str([input_size, input_size])})  # fmt: skip
     return {"macs": g.macs, "params": g.params}
+
+
+def make_square_finder(path: str | os.PathLike, side: int = 24, stride: int = 4, input_size: int = 640, names=("red", "blue"), power: int = 4,
+                       batch: int | str = "batch") -> None:  # fmt: skip
+    """A detector whose boxes come from the pixels, for tiling / region tests: it finds solid red and blue squares of
+    ``side`` pixels (at the scale it is fed) and emits them in the YOLOv8 layout (1 x 6 x N, dynamic batch). Per
+    class a colour mask (relu(R - G - B), relu(B - R - G); 0..1 RGB) is box-filtered over ``side`` x ``side`` at
+    ``stride``; the score is that mean to the ``power``. A square whose top-left pixel (a, b) in the network input
+    has a and b multiples of ``stride`` gives score 1 with the box ``[a - 0.5, b - 0.5, a + side - 0.5, b + side -
+    0.5]`` exactly (pixel centres at integers); a square shrunk by the letterbox (or cut by a window) scores low.
+    ``batch``: ``"batch"`` (dynamic) or a fixed batch size."""
+    from onnx import TensorProto, helper, numpy_helper
+
+    k = int(side)
+    g = input_size // stride + 1  # conv output side with pads k/2 each side
+    w_mask = np.array([[1, -1, -1], [-1, -1, 1]], np.float32).reshape(2, 3, 1, 1)
+    w_box = np.full((2, 1, k, k), 1.0 / (k * k), np.float32)
+    iy, ix = np.meshgrid(np.arange(g, dtype=np.float32), np.arange(g, dtype=np.float32), indexing="ij")
+    boxes = np.stack([ix.ravel() * stride - 0.5, iy.ravel() * stride - 0.5, np.full(g * g, k, np.float32), np.full(g * g, k, np.float32)])[None]
+    inits = [numpy_helper.from_array(w_mask, "w_mask"), numpy_helper.from_array(w_box, "w_box"), numpy_helper.from_array(boxes.astype(np.float32), "anchors"),
+             numpy_helper.from_array(np.array([0, 2, g * g], np.int64), "flat"), numpy_helper.from_array(np.zeros((), np.float32), "zero")]  # fmt: skip
+    nodes = [
+        helper.make_node("Conv", ["images", "w_mask"], ["m"], kernel_shape=[1, 1]),
+        helper.make_node("Relu", ["m"], ["mr"]),
+        helper.make_node("Conv", ["mr", "w_box"], ["r"], kernel_shape=[k, k], strides=[stride, stride], pads=[k // 2] * 4, group=2),
+        helper.make_node("Reshape", ["r", "flat"], ["p1"]),
+    ]
+    cur = "p1"
+    for i in range(int(power) - 1):
+        nodes.append(helper.make_node("Mul", [cur, "p1"], [f"p{i + 2}"]))
+        cur = f"p{i + 2}"
+    nodes += [
+        helper.make_node("ReduceMax", [cur], ["smax"], axes=[1], keepdims=1),
+        helper.make_node("Mul", ["smax", "zero"], ["z"]),
+        helper.make_node("Add", ["z", "anchors"], ["bx"]),
+        helper.make_node("Concat", ["bx", cur], ["output0"], axis=1),
+    ]
+    graph = helper.make_graph(nodes, "square_finder", [helper.make_tensor_value_info("images", TensorProto.FLOAT, [batch, 3, input_size, input_size])],
+                              [helper.make_tensor_value_info("output0", TensorProto.FLOAT, [batch, 4 + len(names), g * g])], inits)  # fmt: skip
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    model.ir_version = 8
+    _save(model, path, ultralytics_meta(list(names), input_size))

@@ -135,3 +135,35 @@ def test_identity_matches_the_visible_part_and_labels_are_unique():
 def test_point_times_model_a_late_sweep():
     t = point_times(1000, 1.112, 0.1, 0.012)
     assert t[0] == np.float64(1.0) + 0.05e-3 and abs(t[-1] - 1.09995) < 1e-9 and np.all(np.diff(t) > 0)
+
+
+def test_connected_labels_is_scipy_connected_components():
+    """The vectorised union-find gives the same partition and the same numbering (components in the order of their
+    smallest node) as scipy's connected_components, on random graphs, long chains in shuffled order and no edges."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from radarcal.runtime.clusters import connected_labels
+
+    rng = np.random.default_rng(5)
+    cases = []
+    for n, e in ((1, 0), (7, 0), (50, 30), (400, 380), (3000, 2500), (3000, 6000)):
+        cases.append((n, rng.integers(0, n, e), rng.integers(0, n, e)))
+    perm = rng.permutation(2000)  # a 2000-node path whose node numbers are shuffled (the worst order for hooking)
+    cases.append((2000, perm[:-1], perm[1:]))
+    for n, a, b in cases:
+        ref = connected_components(coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n)), directed=False)[1]
+        np.testing.assert_array_equal(connected_labels(n, a, b), ref)
+
+
+def test_is_background_grows_to_the_eight_horizontal_neighbours():
+    bg = VoxelBackground((0, 0, 0, 4, 4, 2), voxel=0.2, tau_s=20.0, threshold=1.5)
+    p = np.array([[2.1, 2.1, 0.5]])
+    for t in (0.0, 0.1):
+        bg.update(bg.keys(p), t)
+    near = np.array([[2.1 + dx, 2.1 + dy, 0.5] for dx in (-0.2, 0, 0.2) for dy in (-0.2, 0, 0.2)])
+    far = np.array([[2.5, 2.1, 0.5], [2.1, 2.1, 0.7], [2.1, 1.7, 0.5], [-1.0, 2.0, 0.5]])  # two cells over, one up, outside
+    assert bg.is_background(bg.keys(near), 0.2).all()
+    assert not bg.is_background(bg.keys(far), 0.2).any()
+    assert bg.is_background(bg.keys(near[4:5]), 0.2, grow=0).all() and not bg.is_background(bg.keys(near[:1]), 0.2, grow=0).any()
+    assert not bg.is_background(bg.keys(near), 40.0).any()  # decayed below the threshold

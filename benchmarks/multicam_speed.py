@@ -1,0 +1,274 @@
+"""Several cameras and large frames (issue #19's benchmark): two 1280x1024 cameras with a YOLOv5n-size detector
+each, and one 12 MP camera (4024x3036) with the full frame plus native-resolution regions of interest for far robots.
+
+    PYTHONPATH=$PWD python -m benchmarks multicam_speed              # ~2-4 min on 2 busy cores
+    PYTHONPATH=$PWD python -m benchmarks.multicam_speed --frames 90 --only two|big
+
+Per camera frame: the frame is made in a prefetch thread per camera (1280x1024: JPEG decode of the sample replay's
+images, as a replay does; 12 MP: a raw Bayer BG8 frame demosaiced, as an industrial camera delivers it), letterboxed
+into the detector's input there (``OnnxDetector.prepare_ahead``); two detect workers (one onnxruntime intra-op
+thread each) run the detector (and, 12 MP, ``detect_regions`` on ``plan_rois`` windows around far robots); the
+main thread fuses each frame's boxes (``Pipeline.process``, the sample replay's detections, because the random-weight
+net finds nothing) and ingests a cloud every 0.1 s of frame time. No trained weights can be downloaded here: the
+detector is ``synthetic_onnx.make_yolov5n_like`` (2.19 GMAC, 1.61 M parameters, YOLOv5n's 1 x 25200 x 17 output).
+
+Two runs per configuration: *as fast as possible* (throughput: frames per second per camera, CPU time per frame of
+all threads, the FPS that CPU time allows on two free cores) and *paced* at the target rate with the prefetch
+keeping only the newest frame (``latest_only``, as for a live camera): frame age at the output (capture -> fused)
+and frames dropped, which is what "no latency build-up" means.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import sys
+import tempfile
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "datasets" / "sample_replay"
+NAMES = [f"{t}_{n}" for t in ("red", "blue") for n in (1, 2, 3, 4, 5, 7)]
+BIG_HW = (3036, 4024)
+
+
+def _frames(kind: str, n: int) -> list:
+    """Source frames: JPEG bytes of 1280x1024 images (``jpeg``, ``jpeg_flip`` for a second camera) or 12 MP Bayer BG8
+    arrays (``bayer``)."""
+    import cv2
+
+    paths = sorted((SAMPLE / "images").glob("*.jpg"))[:n]
+    out = []
+    for p in paths:
+        img = cv2.imread(str(p))
+        if kind == "jpeg_flip":
+            img = img[:, ::-1].copy()
+        if kind.startswith("jpeg"):
+            out.append((p.name, cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 90])[1]))
+        else:
+            big = cv2.resize(img, BIG_HW[::-1], interpolation=cv2.INTER_LINEAR)
+            bayer = np.empty(BIG_HW, np.uint8)  # BG pattern: B at (even, even), R at (odd, odd)
+            bayer[0::2, 0::2] = big[0::2, 0::2, 0]
+            bayer[0::2, 1::2] = big[0::2, 1::2, 1]
+            bayer[1::2, 0::2] = big[1::2, 0::2, 1]
+            bayer[1::2, 1::2] = big[1::2, 1::2, 2]
+            out.append((p.name, bayer))
+    return out
+
+
+class _Stream:
+    """One camera. A capture thread hands over raw frames (JPEG bytes / Bayer arrays); ``paced_hz``: at that rate,
+    into a one-frame slot that a newer capture overwrites (the older one is dropped before any work is spent on it, as
+    a live camera driver does). A prefetch thread takes the newest raw frame, decodes / demosaics it and letterboxes
+    it for the detector (``prepare_ahead``), and queues it (one frame when paced)."""
+
+    def __init__(self, cam: str, src: list, detector, total: int, paced_hz: float | None):
+        self.cam, self.src, self.det, self.total, self.hz = cam, src, detector, total, paced_hz
+        self.raw: queue.Queue = queue.Queue(maxsize=1 if paced_hz else 3)
+        self.q: queue.Queue = queue.Queue(maxsize=1 if paced_hz else 3)
+        self.dropped = 0
+        self.cpu = {"decode": [], "letterbox": []}
+        self.wall = {"decode": [], "letterbox": []}
+        self.lock = threading.Lock()
+        self.th = [threading.Thread(target=self._capture, daemon=True), threading.Thread(target=self._prefetch, daemon=True)]
+
+    def start(self):
+        for t in self.th:
+            t.start()
+
+    def _capture(self):
+        t_start = time.perf_counter()
+        for k in range(self.total):
+            if self.hz:
+                wait = t_start + k / self.hz - time.perf_counter()
+                if wait > 0:
+                    time.sleep(wait)
+            name, data = self.src[k % len(self.src)]
+            item = (k, name, data, time.perf_counter())
+            if self.hz:
+                with self.lock:
+                    try:
+                        self.raw.get_nowait()
+                        self.dropped += 1
+                    except queue.Empty:
+                        pass
+                    self.raw.put(item)
+            else:
+                self.raw.put(item)
+        self.raw.put(None)
+
+    def _prefetch(self):
+        import cv2
+
+        while True:
+            item = self.raw.get()
+            if item is None:
+                break
+            k, name, data, t_cap = item
+            c0, w0 = time.thread_time(), time.perf_counter()
+            img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.ndim == 1 else cv2.cvtColor(data, cv2.COLOR_BayerBG2BGR)
+            c1, w1 = time.thread_time(), time.perf_counter()
+            self.det.prepare_ahead(img)
+            self.cpu["decode"].append(c1 - c0)
+            self.wall["decode"].append(w1 - w0)
+            self.cpu["letterbox"].append(time.thread_time() - c1)
+            self.wall["letterbox"].append(time.perf_counter() - w1)
+            self.q.put((k, name, img, t_cap))
+        self.q.put(None)
+
+
+def bench(kind: str = "two", frames: int = 90, paced_hz: float | None = None, rois: int = 2, workers: int = 2) -> dict:
+    from radarcal.bundle import load_bundle
+    from radarcal.runtime.detector import DetectionsFile, OnnxDetector, plan_rois
+    from radarcal.runtime.loop import Pipeline, RunConfig, limit_blas_threads
+    from radarcal.runtime.sources import open_replay
+    from radarcal.runtime.synthetic_onnx import count_macs, make_yolov5n_like
+
+    b = load_bundle(SAMPLE / "calib.yaml")
+    rep = open_replay(SAMPLE)
+    dfile = DetectionsFile.read(rep.detections)
+    clouds = [c.points for c in rep.cloud_frames()][:30]
+    cams = ["cam0", "cam1"] if kind == "two" else ["cam0"]
+    srcs = {"cam0": _frames("jpeg", 30), "cam1": _frames("jpeg_flip", 30)} if kind == "two" else {"cam0": _frames("bayer", 6)}
+    hz_target = 15.0 if kind == "two" else 10.0
+    rng = np.random.default_rng(0)
+    with tempfile.TemporaryDirectory() as tmp, limit_blas_threads(1):
+        dets, pipes = {}, {}
+        for i, cam in enumerate(cams):
+            make_yolov5n_like(Path(tmp) / f"{cam}.onnx", nc=len(NAMES), names=NAMES, seed=i)
+            dets[cam] = OnnxDetector(Path(tmp) / f"{cam}.onnx", threads=1)
+            pipes[cam] = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b))  # the fusion cost per camera frame
+        warm = srcs["cam0"][0][1]
+        import cv2
+
+        wimg = cv2.imdecode(warm, cv2.IMREAD_COLOR) if warm.ndim == 1 else cv2.cvtColor(warm, cv2.COLOR_BayerBG2BGR)
+        for d in dets.values():
+            for _ in range(2):
+                d(wimg)
+        streams = {cam: _Stream(cam, srcs[cam], dets[cam], frames, paced_hz) for cam in cams}
+        stage_cpu = {k: [] for k in ("detect", "regions", "fuse")}
+        stage_wall = {k: [] for k in ("infer", "nms", "regions", "fuse")}
+        ages, n_rois = [], []
+        out_t: dict[str, list[float]] = {}
+
+        def detect(cam, img):
+            c0 = time.thread_time()
+            d = dets[cam]
+            found = d.detect_batch([img])[0]
+            tm = dict(d.last_timings_ms)
+            c1 = time.thread_time()
+            reg = None
+            if kind == "big" and rois:
+                # far robots: the replay's smallest boxes stand in for far tracks projected into the frame (a
+                # 12 MP frame is 3.14x the 1280x1024 the boxes are in)
+                pts = np.array([[0.5 * (x.xyxy[0] + x.xyxy[2]), 0.5 * (x.xyxy[1] + x.xyxy[3])] for x in sorted(dfile.boxes[0], key=lambda x: x.xyxy[2] - x.xyxy[0])])
+                pts = pts * (BIG_HW[1] / 1280.0) + rng.normal(0, 30, pts.shape)
+                win = plan_rois(pts, img.shape[:2], 640, max_rois=rois)
+                found = d.detect_regions(img, win, full=found)
+                reg = dict(d.last_timings_ms)
+            return found, tm, reg, c1 - c0, time.thread_time() - c1
+
+        order = []  # (cam, future, frame index, name, t_capture)
+        done = {cam: False for cam in cams}
+        count = {cam: 0 for cam in cams}
+        cloud_k = 0
+        turn = 0
+        load0 = os.getloadavg()[0]
+        for s in streams.values():
+            s.start()
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        with ThreadPoolExecutor(workers, thread_name_prefix="detect") as ex:
+            while not all(done.values()) or order:
+                turn = (turn + 1) % len(cams)
+                for cam in cams[turn:] + cams[:turn]:  # one frame of each camera in turn, starting with the next one
+                    if done[cam] or len(order) >= workers:  # at most `workers` frames in flight: no queue builds up
+                        continue
+                    item = streams[cam].q.get()
+                    if item is None:
+                        done[cam] = True
+                        continue
+                    k, name, img, t_cap = item
+                    order.append((cam, ex.submit(detect, cam, img), k, name, t_cap))
+                if not order:
+                    continue
+                cam, fut, k, name, t_cap = order.pop(0)
+                found, tm, reg, cpu_det, cpu_reg = fut.result()
+                c0, w0 = time.thread_time(), time.perf_counter()
+                t_frame = k / hz_target
+                while cloud_k / 10.0 <= t_frame and cam == cams[0]:
+                    pipes[cam].add_cloud(cloud_k / 10.0, clouds[cloud_k % len(clouds)])
+                    cloud_k += 1
+                pipes[cam].process(t_frame, name, dfile.lookup(0.0, name) if found is not None else [])
+                stage_cpu["fuse"].append(time.thread_time() - c0)
+                stage_wall["fuse"].append(time.perf_counter() - w0)
+                stage_cpu["detect"].append(cpu_det)
+                stage_cpu["regions"].append(cpu_reg)
+                stage_wall["infer"].append(tm["infer"] / 1e3)
+                stage_wall["nms"].append(tm["decode"] / 1e3)
+                if reg is not None:
+                    stage_wall["regions"].append((reg["preprocess"] + reg["infer"] + reg["decode"] + reg["merge"]) / 1e3)
+                    n_rois.append(reg["regions"])
+                ages.append(time.perf_counter() - t_cap)
+                out_t.setdefault(cam, []).append(time.perf_counter())
+                count[cam] += 1
+        wall = time.perf_counter() - t0
+        cpu = time.process_time() - cpu0
+        load = 0.5 * (load0 + os.getloadavg()[0])
+    n = sum(count.values())
+    macs, params = count_macs(640, len(NAMES))
+    dec = {k: np.concatenate([np.asarray(s.cpu[k]) for s in streams.values()]) for k in ("decode", "letterbox")}
+    decw = {k: np.concatenate([np.asarray(s.wall[k]) for s in streams.values()]) for k in ("decode", "letterbox")}
+    return {"kind": kind, "cams": cams, "wall_s": wall, "frames_per_cam": min(count.values()), "fps_per_cam": min((len(v) - 1) / max(v[-1] - v[0], 1e-9) for v in out_t.values()), "cpu_ms_per_frame": cpu / n * 1e3,
+            "cpu_stage_ms": {"decode": 1e3 * np.median(dec["decode"]), "letterbox": 1e3 * np.median(dec["letterbox"]),
+                             **{k: 1e3 * np.median(v) for k, v in stage_cpu.items()}},
+            "wall_stage_ms": {"decode": (1e3 * np.median(decw["decode"]), 1e3 * np.percentile(decw["decode"], 95)),
+                              "letterbox": (1e3 * np.median(decw["letterbox"]), 1e3 * np.percentile(decw["letterbox"], 95)),
+                              **{k: (1e3 * np.median(v), 1e3 * np.percentile(v, 95)) for k, v in stage_wall.items() if v}},
+            "age_ms": (1e3 * np.median(ages), 1e3 * np.percentile(ages, 95), 1e3 * np.max(ages)), "dropped": sum(s.dropped for s in streams.values()),
+            "offered": frames * len(cams), "paced_hz": paced_hz, "load": load, "macs": macs, "params": params, "rois": float(np.median(n_rois)) if n_rois else 0.0,
+            "hz_target": hz_target}  # fmt: skip
+
+
+def _print(r: dict) -> None:
+    what = "two 1280x1024 cameras (JPEG replay frames)" if r["kind"] == "two" else f"one 12 MP camera {BIG_HW[1]}x{BIG_HW[0]} (raw Bayer frames), full frame + {r['rois']:.0f} ROI windows"
+    mode = f"paced at {r['paced_hz']:.0f} FPS per camera, newest frame only" if r["paced_hz"] else "as fast as possible"
+    c = r["cpu_ms_per_frame"]
+    print(f"{what}; YOLOv5n-size {r['macs'] / 1e9:.2f} GMAC per 640 run; {mode}")
+    print(f"  {r['frames_per_cam']} frames per camera: {r['fps_per_cam']:.1f} FPS per camera wall-clock (first to last output); CPU {c:.1f} ms per camera frame (all threads) -> "
+          f"{2000 / c / len(r['cams']):.1f} FPS per camera on two free cores; frame age capture->fused median {r['age_ms'][0]:.0f} ms, p95 {r['age_ms'][1]:.0f}, "
+          f"max {r['age_ms'][2]:.0f}; dropped {r['dropped']} / {r['offered']}; 1-min load average {r['load']:.1f} on {os.cpu_count()} cores")  # fmt: skip
+    keys = [k for k in ("decode", "letterbox", "infer", "nms", "regions", "fuse") if k in r["wall_stage_ms"]]
+    cpu_of = {"decode": "decode", "letterbox": "letterbox", "infer": "detect", "nms": None, "regions": "regions", "fuse": "fuse"}
+    print("  | stage | " + " | ".join(keys) + " |")
+    print("  |---|" + "---|" * len(keys))
+    print("  | wall median / p95 (ms) | " + " | ".join(f"{r['wall_stage_ms'][k][0]:.1f} / {r['wall_stage_ms'][k][1]:.1f}" for k in keys) + " |")
+    print("  | CPU median (ms) | " + " | ".join("(in infer)" if cpu_of[k] is None else f"{r['cpu_stage_ms'][cpu_of[k]]:.1f}" for k in keys) + " |")
+    sys.stdout.flush()
+
+
+def main(argv: list[str]) -> int:
+    if not (SAMPLE / "meta.json").is_file():
+        print(f"{SAMPLE} missing: run python datasets/make_sample.py")
+        return 1
+    frames = int(argv[argv.index("--frames") + 1]) if "--frames" in argv else 90
+    only = argv[argv.index("--only") + 1] if "--only" in argv else None
+    print("cameras x detector throughput (random-weight YOLOv5n-size graph; detect = letterboxed run + decode + NMS; CPU = thread time)")
+    print("(detect CPU: onnxruntime + decode + NMS of the full frame; regions: the ROI windows' letterbox + run + decode + merge)\n")
+    if only in (None, "two"):
+        _print(bench("two", frames))
+        _print(bench("two", frames, paced_hz=15.0))
+    if only in (None, "big"):
+        _print(bench("big", max(frames * 2 // 3, 20)))
+        _print(bench("big", max(frames * 2 // 3, 20), paced_hz=10.0))
+        _print(bench("big", max(frames * 2 // 3, 20), paced_hz=10.0, rois=1))
+        _print(bench("big", max(frames // 3, 20), rois=0))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,94 @@
+"""Several cameras in the runtime (issue #19): time pairing, detection per tick, fusion of one robot's fixes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from radarcal.errors import InputError
+from radarcal.runtime.detector import Detection
+from radarcal.runtime.lidar_first import fuse_fixes
+from radarcal.runtime.multicam import TickDetector, group_by_time, missing_text, parse_videos
+from radarcal.runtime.pipeline import fuse_by_label
+from radarcal.runtime.sources import CameraFrame
+
+
+def _frames(times, prefix=""):
+    return [CameraFrame(float(t), f"{prefix}{i:03d}", lambda: None, i) for i, t in enumerate(times)]
+
+
+def test_group_by_time_pairs_and_reports_a_missing_camera():
+    a = _frames(np.arange(30) / 30)
+    b = _frames([t for t in np.arange(30) / 30 + 0.011 if not 0.3 < t < 0.9])  # cam1 unplugged 0.3 .. 0.9 s
+    ticks = list(group_by_time({"cam0": a, "cam1": b}, window_s=0.017, missing_after_s=0.2))
+    assert len(ticks) == 30  # every cam0 frame opens a tick; cam1 frames join the tick 11 ms before them
+    for tk in ticks:
+        f0 = tk.frames["cam0"]
+        if "cam1" in tk.frames:
+            assert 0 < tk.frames["cam1"].t - f0.t < 0.017 and tk.t == tk.frames["cam1"].t
+        assert tk.name == f"cam0/{f0.name}"
+    gap = [tk for tk in ticks if "cam1" not in tk.frames]
+    assert len(gap) == 18 and all(tk.frames["cam0"].t > 0.29 for tk in gap)
+    late = [tk for tk in gap if tk.t - 0.3 > 0.2 + 1 / 30]
+    assert late and all(tk.missing == ["cam1"] for tk in late) and all(not tk.missing for tk in ticks if "cam1" in tk.frames)
+    assert "cam1 MISSING" in missing_text(["cam1"]) and missing_text([]) == ""
+    # one camera far behind the other still pairs by time, never by arrival order
+    ticks = list(group_by_time({"cam0": _frames([0.0, 0.1, 0.2]), "cam1": _frames([0.105, 0.31])}, window_s=0.017))
+    assert [sorted(tk.frames) for tk in ticks] == [["cam0"], ["cam0", "cam1"], ["cam0"], ["cam1"]]
+
+
+def test_tick_detector_one_batched_call_per_tick():
+    calls = []
+
+    class Rec:
+        last_timings_ms = {"robot": 1.0}
+
+        def __call__(self, images):
+            calls.append(len(images))
+            return [[Detection(np.array([0.0, 0.0, 10.0, 10.0]), f"blue_{int(im[0, 0])}", 0.9)] for im in images]
+
+    f0 = CameraFrame(1.0, "a", lambda: np.full((4, 4), 1.0), 0)
+    f1 = CameraFrame(0.99, "b", lambda: np.full((4, 4), 3.0), 0)
+    ticks = list(group_by_time({"cam0": [f0], "cam1": [f1]}))
+    assert len(ticks) == 1
+    vd = TickDetector(recogniser=Rec())(ticks[0])
+    assert calls == [2]
+    assert [(c, t, n, d[0].label) for c, t, n, d in vd.views] == [("cam1", 0.99, "b", "blue_3"), ("cam0", 1.0, "a", "blue_1")]
+
+
+def test_parse_videos():
+    assert parse_videos(["/dev/video0"]) is None and parse_videos(["rtsp://x/y"]) is None
+    assert parse_videos(["cam0=0", "cam1=rtsp://h/s"]) == {"cam0": "0", "cam1": "rtsp://h/s"}
+    for bad in (["cam0=0", "x"], ["cam0=0", "cam0=1"]):
+        with pytest.raises(InputError):
+            parse_videos(bad)
+
+
+def _fix(k, j, xy, sigma, label, source="ground", score=0.9):
+    return {"k": k, "j": j, "p": np.array([*xy, 0.0]), "sigma": sigma, "source": source, "label": label, "score": score, "t": 1.0, "h": 40.0}
+
+
+def test_fuse_fixes_one_robot_from_two_cameras():
+    wide, tele = _fix(0, 0, (20.0, 5.0), 0.6, "blue_3"), _fix(1, 0, (20.3, 5.1), 0.2, "blue_3")
+    other = _fix(1, 1, (22.0, 5.0), 0.2, "blue_4")  # another robot 2 m away: stays apart
+    out = fuse_fixes([wide, tele, other])
+    assert len(out) == 2
+    f = next(o for o in out if len(o["votes"]) == 2)
+    w = np.array([1 / 0.6**2, 1 / 0.2**2])
+    assert np.allclose(f["p"][:2], (w[0] * np.array([20.0, 5.0]) + w[1] * np.array([20.3, 5.1])) / w.sum())
+    assert f["sigma"] == pytest.approx(1 / np.sqrt(w.sum())) and f["label"] == "blue_3"
+    # a misread number of the same robot (same colour, 0.1 m apart) joins; the tele's label wins by weight
+    out = fuse_fixes([_fix(0, 0, (20.0, 5.0), 0.6, "blue_4"), _fix(1, 0, (20.1, 5.0), 0.2, "blue_3")])
+    assert len(out) == 1 and out[0]["label"] == "blue_3" and sorted(v[0] for v in out[0]["votes"]) == ["blue_3", "blue_4"]
+    # two boxes of one camera are two robots, even on top of each other; another colour never joins
+    assert len(fuse_fixes([_fix(0, 0, (20.0, 5.0), 0.2, "blue_3"), _fix(0, 1, (20.1, 5.0), 0.2, "blue_3")])) == 2
+    assert len(fuse_fixes([_fix(0, 0, (20.0, 5.0), 0.2, "blue_3"), _fix(1, 0, (20.1, 5.0), 0.2, "red_3")])) == 2
+
+
+def test_fuse_by_label_weights_and_gates():
+    m = [("blue_1", np.array([10.0, 5.0]), 0.5, "ground", 0.8, np.nan), ("blue_1", np.array([10.4, 5.0]), 0.1, "depth", 0.7, 12.0),
+         ("blue_1", np.array([18.0, 5.0]), 0.3, "ground", 0.9, np.nan), ("red_2", np.array([3.0, 3.0]), 0.2, "depth", 0.6, 4.0)]  # fmt: skip
+    out = {o[0]: o for o in fuse_by_label(m)}
+    xy = (np.array([10.0, 5.0]) / 0.25 + np.array([10.4, 5.0]) / 0.01) / (1 / 0.25 + 1 / 0.01)
+    assert np.allclose(out["blue_1"][1], xy) and out["blue_1"][3] == "depth" and out["blue_1"][5] == 12.0  # the one at 18 m is dropped
+    assert np.allclose(out["red_2"][1], [3.0, 3.0])
