@@ -10,6 +10,7 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import CloudTopicOpt, JsonOpt, ReplayBundleOpt, emit, err_console
+from radarcal.cli.marking_options import DvAtOpt, DvEnemiesInHalfOpt, DvOnDartOpt, DvOnKeyOpt, GuessOpt, RosterOpt, marking_overrides
 from radarcal.cli.hero_offset_cmd import compute_hero_offset, hero_offset  # noqa: F401 - registered from here by cli/main.py
 from radarcal.cli.outputs import check_outputs
 from radarcal.cli.run_checks import check_serial_port, check_season, run_warnings
@@ -60,6 +61,12 @@ def run(
     speed: float = typer.Option(None, "--speed", help="Replay at this multiple of real time (default: 1 with --ui, else as fast as possible; 0 = unpaced)."),
     field_pose: str = typer.Option("auto", "--field-pose", help="Camera field pose: chain (lidar-field T_field_lidar · T_lidar_cam), pnp (field-pnp), auto (chain when lidar-field converged, else pnp)."),
     drift_check_s: float = typer.Option(0.0, "--drift-check-s", help="Every this many seconds re-register the LiDAR's static points to the field and warn when it moved > 2 cm / 0.1 deg (0 = off)."),
+    roster: RosterOpt = True,
+    guess: GuessOpt = True,
+    dv_at: DvAtOpt = None,
+    dv_enemies_in_half: DvEnemiesInHalfOpt = None,
+    dv_on_key: DvOnKeyOpt = None,
+    dv_on_dart: DvOnDartOpt = False,
     as_json: JsonOpt = False,
 ) -> None:
     """Localise robots on the field from camera(s) + LiDAR, track them, draw the minimap, talk to the referee system."""
@@ -73,12 +80,13 @@ def run(
     o = RunOptions(**{f.name: given[f.name] for f in fields(RunOptions) if f.name in given})
     o.video, o.clouds, o.status = list(video or []), list(clouds or []), not quiet and not as_json
     validate_options(o)
+    o.marking = marking_overrides(roster, guess, dv_at, dv_enemies_in_half, dv_on_key, dv_on_dart)
     if replay is not None and is_recording(replay):
         from radarcal.cli.run_recording import run_recording
 
         return run_recording(replay, bundle=bundle, speed=speed or 0.0, detector=detector, names=names, conf=conf, threads=threads, detections=detections, serial=serial,
                              out=out, minimap=minimap, camera=camera, lidar=lidar, team=team, season=season, max_frames=max_frames, no_lidar=no_lidar,
-                             quiet=quiet, as_json=as_json, sentry_xy=sentry_xy)  # fmt: skip
+                             quiet=quiet, as_json=as_json, sentry_xy=sentry_xy, marking=o.marking)  # fmt: skip
     o.cloud_offset, o.sentry_xy, o.drift_check_s = _cloud_offset(cloud_offset), _sentry_xy(sentry_xy), _drift_s(drift_check_s)
     plan = plan_run(o)
     check_season(plan.cfg.season, "--season" if season is not None else f"{plan.bundle_path}: runtime.referee_season")

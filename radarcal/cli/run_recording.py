@@ -20,7 +20,7 @@ __all__ = ["run_recording"]
 
 
 def run_recording(replay: Path, *, bundle, speed, detector, names, conf, threads, detections, serial, out, minimap, camera, lidar, team, season,
-                  max_frames, no_lidar, quiet, as_json, sentry_xy) -> None:  # fmt: skip
+                  max_frames, no_lidar, quiet, as_json, sentry_xy, marking: dict | None = None) -> None:  # fmt: skip
     from radarcal.bundle import load_bundle
     from radarcal.io.recording import file_sha256, open_recording, paced
     from radarcal.runtime.detector import DetectionsFile, OnnxDetector, read_class_names
@@ -59,7 +59,7 @@ def run_recording(replay: Path, *, bundle, speed, detector, names, conf, threads
                 raise InputError(bundle, f"no extrinsic T_{lidar_name}_{n} for the recorded LiDAR {n!r}")
             T[n] = b.T(lidar_name, n)
     sxy = tuple(float(v) for v in sentry_xy.split(",")) if sentry_xy else None
-    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy)
+    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy, **(marking or {}))
     pipe = Pipeline(b, cam_name, lidar_name if has_clouds else None, cfg)
     if detector is not None:
         det = OnnxDetector(detector, read_class_names(names) if names else None, conf_thres=conf, threads=threads)
@@ -83,8 +83,10 @@ def run_recording(replay: Path, *, bundle, speed, detector, names, conf, threads
         out_link = SerialLink(serial, season=cfg.season).start()
     link = ReplayLink([(t, buf) for t, d, buf in rec.serial_records() if d == 0], out_link)
     try:
+        from radarcal.runtime.marking import Marking
+
         summary = run_loop(pipe, advancing(merge_by_time(frames, clouds), link), detect, out, minimap, link, status=not quiet and not as_json,
-                           max_frames=max_frames, write_latency=False)  # fmt: skip
+                           max_frames=max_frames, write_latency=False, marking=Marking(cfg))  # fmt: skip
     finally:
         link.close()
     summary.pop("results")

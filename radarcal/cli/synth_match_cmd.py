@@ -10,7 +10,29 @@ import typer
 from radarcal.cli.common import JsonOpt, command_line, emit, progress
 from radarcal.errors import InputError
 
-__all__ = ["synth_match"]
+__all__ = ["synth_match", "parse_robot_windows"]
+
+
+def parse_robot_windows(values: list[str] | None, option: str, need_times: bool) -> tuple:
+    """``ROBOT:T0:T1`` (or ``ROBOT`` alone when ``need_times`` is False: the whole replay) -> ((label, t0, t1), ...)."""
+    out = []
+    for text in values or []:
+        parts = text.split(":")
+        label = parts[0]
+        team, _, num = label.partition("_")
+        if team not in ("red", "blue") or num not in tuple("1234567"):
+            raise InputError(option, f"expected a robot label like blue_3, got {label!r} in {text!r}")
+        if len(parts) == 1 and not need_times:
+            out.append((label, 0.0, float("inf")))
+            continue
+        try:
+            t0, t1 = (float(v) for v in parts[1:])
+        except ValueError:
+            raise InputError(option, f"expected ROBOT:T0:T1 (seconds), got {text!r}") from None
+        if not 0 <= t0 < t1:
+            raise InputError(option, f"expected 0 <= T0 < T1, got {text!r}")
+        out.append((label, t0, t1))
+    return tuple(out)
 
 
 def synth_match(
@@ -26,6 +48,8 @@ def synth_match(
     calib_rot: float = typer.Option(0.3, "--calib-rot-deg", help="Rotation error of the bundle's T_cam_lidar (deg)."),
     calib_trans: float = typer.Option(0.02, "--calib-trans-m", help="Translation error of the bundle's T_cam_lidar (m)."),
     pnp_px: float = typer.Option(1.5, "--pnp-px", help="Click noise (px) of the four-point field PnP."),
+    camera_miss: list[str] = typer.Option(None, "--camera-miss", help="ROBOT:T0:T1 - the detector misses that robot in [T0, T1] s; the LiDAR still sees it (repeatable)."),
+    absent: list[str] = typer.Option(None, "--absent", help="ROBOT or ROBOT:T0:T1 - that robot is truly not on the field (whole replay or in [T0, T1] s; repeatable)."),
     as_json: JsonOpt = False,
 ) -> None:
     """Write a realistic match replay (clouds/, detections.jsonl, truth.jsonl, calib.yaml) — see docs/runtime.md."""
@@ -41,7 +65,8 @@ def synth_match(
     check_output(out, what="replay folder", folder=True)
     fm = load_field(field)
     cfg = MatchConfig(frames=frames, seed=seed, robots=robots, scenario=scenario, aerial=not no_aerial, people=people, lidar_points=lidar_points,
-                      calib_rot_deg=calib_rot, calib_trans_m=calib_trans, pnp_px=pnp_px)  # fmt: skip
+                      calib_rot_deg=calib_rot, calib_trans_m=calib_trans, pnp_px=pnp_px, camera_miss=parse_robot_windows(camera_miss, "--camera-miss", True),
+                      absent=parse_robot_windows(absent, "--absent", False))  # fmt: skip
     prog = lambda it, description="": progress(it, description, enabled=not as_json)  # noqa: E731
     s = write_match_replay(out, fm, cfg, generator=command_line(), progress=prog)
     emit(s, as_json, lambda d: typer.echo(f"wrote {d['out']}: {d['frames']} frames, {d['clouds']} clouds, {d['robots']} robots, {d['boxes']} boxes "

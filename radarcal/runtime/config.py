@@ -44,6 +44,15 @@ class RunConfig:
     learn_background: bool = True
     ground_min_aspect: float = 0.55  # box height / width below which a LiDAR-first box-only fix takes no ground ray
     drift_check_s: float = 0.0  # re-register the LiDAR to the field every this many seconds (0: off; runtime/drift.py)
+    # marking (radarcal.runtime.roster / marking, docs/runtime.md "Roster, guessing, bandwidth, double vulnerability")
+    roster: bool = True  # fixed robot slots by label history (False: each frame's labels as they are)
+    guess: bool = True  # send a guess for an empty slot, kept while that robot's mark progress rises
+    roster_hold_s: float = 0.5  # a lost slot is predicted this long (longer while the pipeline predicts its track by name), then left empty
+    guess_ban_s: float = 8.0  # a guess the mark progress did not confirm is not tried again for this long
+    dv_at_s: float | None = None  # double vulnerability at this match time (s since the match started)
+    dv_enemies_in_half: int | None = None  # ... when at least this many enemies are in our half
+    dv_on_key: str | None = None  # ... on this key of the aerial operator's map command (0x0303)
+    dv_on_dart: bool = False  # ... when our dart hits (0x0105)
 
     # bundle runtime key -> field (read by from_bundle)
     BUNDLE_KEYS = {"referee_season": "season", "robot_radius_m": "robot_radius_m", "cloud_queue_points": "cloud_queue_points", "cloud_queue_age_s": "cloud_queue_age_s",

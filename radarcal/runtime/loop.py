@@ -73,13 +73,14 @@ def limit_blas_threads(n: int = 1):
 
 def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = None, minimap_path: Path | None = None, link=None,
         status: bool = True, max_frames: int | None = None, keep_results: bool = False, on_frame: Callable | None = None,
-        status_extra: Callable[[], str] | None = None, write_latency: bool = True) -> dict:  # fmt: skip
+        status_extra: Callable[[], str] | None = None, write_latency: bool = True, marking=None) -> dict:  # fmt: skip
     """Run the loop over ``pairs`` (camera frame, new clouds). ``detect(frame) -> list[Detection]``.
 
     Writes one JSON line per frame to ``out_path``; the minimap to ``minimap_path`` (.png: last frame with whole
     trails; .mp4/.avi: a video at the camera rate); sends referee frames through ``link``. ``status_extra()`` adds
     sensor health to the status line; ``write_latency=False`` leaves the wall-clock latencies out of the JSON lines
-    (replays of a recording: byte-identical output). Returns a summary."""
+    (replays of a recording: byte-identical output); ``marking`` (:class:`radarcal.runtime.marking.Marking`) decides
+    what goes on the link (roster, guesses, bandwidth, double vulnerability). Returns a summary."""
     import cv2
 
     timer = StageTimer()
@@ -136,7 +137,8 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
                         if len(hist) > 3000:  # whole-run trails for the PNG, bounded: thin the older half
                             hist[:2000] = hist[:2000:2]
             if link is not None:
-                for cmd, data, key in pipeline.referee_messages(res, team):
+                msgs = marking.messages(res, team, link.state) if marking is not None else pipeline.referee_messages(res, team)
+                for cmd, data, key in msgs:
                     link.send(cmd, data, key)
             res.timings_ms["output"] = (time.perf_counter() - tic) * 1e3
             timer.add(res.timings_ms)
@@ -164,7 +166,7 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
                 ser = ""
                 if link is not None:
                     s = link.snapshot()
-                    ser = f" | serial {'ok' if s['connected'] else 'DOWN'} tx {s['sent']} rx {s['received']}"
+                    ser = f" | serial {'ok' if s['connected'] else 'DOWN'} tx {s['sent']} rx {s['received']}" + (marking.status_text() if marking is not None else "")
                 line = f"frame {n:6d} t={res.t:8.2f}s | {timer.fps():5.1f} FPS | ms: {stages} | robots {len(res.robots)} {srcs}{ser}"
                 if status_extra is not None:
                     line += status_extra()
@@ -190,4 +192,6 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             raise InputError(minimap_path, "cannot write minimap image")
     wall = time.perf_counter() - t_start
     return {"frames": n, "wall_s": wall, "fps": n / wall if wall > 0 else 0.0, "latency_ms": timer.summary(), "robot_frames": located,
-            "clouds": pipeline.clouds_in, "bad_frames": bad_frames, "results": results, **({"drift": pipeline.drift.summary()} if getattr(pipeline, "drift", None) is not None else {})}  # fmt: skip
+            "clouds": pipeline.clouds_in, "bad_frames": bad_frames, "results": results,
+            **({"drift": pipeline.drift.summary()} if getattr(pipeline, "drift", None) is not None else {}),
+            **({"marking": marking.summary()} if marking is not None else {})}  # fmt: skip

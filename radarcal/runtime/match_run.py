@@ -60,6 +60,7 @@ class RunOptions:
     localise: str = "auto"
     no_camera: bool = False
     status: bool = True
+    marking: dict = field(default_factory=dict)  # RunConfig fields of the marking side (cli/marking_options.py)
     ui: str | None = None
     speed: float | None = None
     field_pose: str = "auto"
@@ -156,7 +157,7 @@ def plan_run(o: RunOptions) -> RunPlan:
     elif str(meta.get("generator", "")).startswith("radarcal synth field"):  # robots frozen at the cloud stamp
         timing = {"cloud_sweep_s": 0.0, "cloud_latency_s": 0.0}
     cfg = RunConfig.from_bundle(b, team=o.team, season=o.season, sentry_xy=o.sentry_xy, localise="lidar" if lidar_only else o.localise,
-                                drift_check_s=o.drift_check_s, **timing)
+                                drift_check_s=o.drift_check_s, **timing, **o.marking)
     return RunPlan(o, Path(bundle), b, rep, cams, lidar, has_clouds, lidar_only, cfg, [f"bundle {w}" for w in forced_entries(b)], videos, multi)
 
 
@@ -228,6 +229,9 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
 
             factory = tapped_serial(recorder)
         link = SerialLink(o.serial, season=cfg.season, serial_factory=factory).start()
+    from radarcal.runtime.marking import Marking
+
+    marking = Marking(cfg, field_length_m=pipe.field_model.size[0] if pipe.field_model is not None else 28.0) if link is not None else None
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     pairs = merge_by_time(frames, cloud_src, o.cloud_offset) if frames is not None else cloud_frames_as_pairs(cloud_src, o.cloud_offset if isinstance(o.cloud_offset, float) else 0.0)
     on_frame, console = evaluator, None
@@ -238,6 +242,8 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
         if o.ui is not None:
             console = start_console(o.ui, pipe, b, cam_name, lidar_name if has_clouds else None, {"camera": cam_name, "team": cfg.team, "hero_range_offset_m": cfg.hero_range_offset_m})
             pairs, detect, on_frame = console.observe_pairs(pairs), console.observe_detect(detect), chain_callbacks(evaluator, console.on_frame)
+            if marking is not None:
+                console.on_action("double_vulnerability", marking.operator_dv)
             for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None)),
                               ("drift", getattr(pipe, "drift", None) and pipe.drift.snapshot)):
                 if callable(src):
@@ -258,7 +264,7 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
 
             parts.append(lambda: missing_text(tick_detect.last_missing))
         extra = (lambda: "".join(p() for p in parts)) if parts else None
-        summary = run_loop(pipe, pairs, detect, o.out, o.minimap, link, status=o.status, max_frames=o.max_frames, on_frame=on_frame, status_extra=extra)
+        summary = run_loop(pipe, pairs, detect, o.out, o.minimap, link, status=o.status, max_frames=o.max_frames, on_frame=on_frame, status_extra=extra, marking=marking)
         if hasattr(cloud_src, "sensors_health") or camera_health:
             summary["health"] = sensors_health()
     finally:

@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from radarcal.runtime import referee_season as _season
+
 __all__ = [
     "SOF",
     "HEADER_LEN",
@@ -55,6 +57,13 @@ __all__ = [
     "parse_radar_mark",
     "parse_radar_info",
     "RefereeState",
+    "CMD_DART_INFO",
+    "CMD_MAP_COMMAND",
+    "SUB_RADAR_CMD",
+    "parse_map_command",
+    "parse_dart_info",
+    "parse_interaction",
+    "sentry_roster_content",
     "robot_id",
     "MAP_SLOTS",
 ]
@@ -71,6 +80,9 @@ CMD_RADAR_MARK = 0x020C
 CMD_RADAR_INFO = 0x020E
 CMD_INTERACTION = 0x0301
 CMD_MAP = 0x0305
+CMD_DART_INFO = 0x0105
+CMD_MAP_COMMAND = 0x0303
+SUB_RADAR_CMD = 0x0121  # 0x0301 sub-id of the radar's double-vulnerability request
 SERVER_ID = 0x8080
 INTERACTION_MAX_CONTENT = 112
 
@@ -231,23 +243,18 @@ def robot_id(team: str, number: int) -> int:
 
 
 # --- 0x0305 minimap --------------------------------------------------------------------------------------------------
-#: robot numbers in the slot order of the all-robots layouts
-MAP_SLOTS = {2024: (1, 2, 3, 4, 5, 7), 2026: (1, 2, 3, 4, 6, 7)}
+#: robot numbers in the slot order of the all-robots layouts (from the season table)
+MAP_SLOTS = {2024: _season.MAP_LAYOUTS["all24"][0], 2026: _season.MAP_LAYOUTS["all48"][0]}
 
 
-KNOWN_SEASONS = (2021, 2022, 2023, 2024, 2025, 2026)  # the seasons whose 0x0305 layout and rate limits are known
+KNOWN_SEASONS = _season.KNOWN_SEASONS  # the seasons whose 0x0305 layout and rate limits are known
 
 
 def map_layout(season: int) -> str:
-    """``"single14"`` (<= 2022), ``"single10"`` (2023), ``"all24"`` (2024-2025), ``"all48"`` (>= 2026)."""
-    season = int(season)
-    if season <= 2022:
-        return "single14"
-    if season == 2023:
-        return "single10"
-    if season <= 2025:
-        return "all24"
-    return "all48"
+    """``"single14"`` (<= 2022), ``"single10"`` (2023), ``"all24"`` (2024-2025), ``"all48"`` (>= 2026): read from
+    :mod:`radarcal.runtime.referee_season` (seasons outside the table take the nearest known one)."""
+    season = min(max(int(season), KNOWN_SEASONS[0]), KNOWN_SEASONS[-1])
+    return _season.rules(season).map_layout.value
 
 
 def _cm(xy) -> tuple[int, int]:
@@ -255,13 +262,15 @@ def _cm(xy) -> tuple[int, int]:
     return tuple(int(min(max(round(v * 100.0), 0), 65535)) if np.isfinite(v) else 0 for v in (x, y))  # type: ignore[return-value]
 
 
-def map_payload(season: int, enemy: dict[int, tuple[float, float]], ally: dict[int, tuple[float, float]] | None = None, enemy_team: str = "blue", angle: dict[int, float] | None = None) -> list[bytes]:
+def map_payload(season: int, enemy: dict[int, tuple[float, float]], ally: dict[int, tuple[float, float]] | None = None, enemy_team: str = "blue", angle: dict[int, float] | None = None,
+                layout: str | None = None) -> list[bytes]:  # fmt: skip
     """0x0305 payload(s) for a season. ``enemy``/``ally`` map robot number (1 hero .. 7 sentry) -> field (x, y) m.
 
     All-robots layouts return one payload (missing robots are (0, 0) = "not sent"; metres -> cm, rounded, clamped
     to 0..65535). Single-target layouts return one payload per enemy robot (``enemy_team`` gives its referee id).
+    ``layout`` overrides the season's (a season table with a changed layout).
     """
-    layout = map_layout(season)
+    layout = layout or map_layout(season)
     if layout.startswith("all"):
         slots = MAP_SLOTS[2024 if layout == "all24" else 2026]
         vals: list[int] = []
@@ -307,6 +316,18 @@ def sentry_guidance_content(target_number: int, dx: float, dy: float, distance: 
     if not valid:
         dx = dy = distance = 0.0
     return struct.pack("<BBfff", target_number & 0xFF, valid, float(dx), float(dy), float(distance))
+
+
+def sentry_roster_content(guidance: bytes, slots: list[tuple[int, int, float, float]]) -> bytes:
+    """The sentry message with the roster: ``guidance`` (:func:`sentry_guidance_content`, 14 bytes) then u8 count and,
+    per enemy slot, u8 robot number, u8 state (1 seen, 2 predicted, 3 guess), u16 x cm, u16 y cm (6 bytes each)."""
+    out = bytes(guidance) + bytes([len(slots) & 0xFF])
+    for number, state, x, y in slots:
+        cx, cy = _cm((x, y))
+        out += struct.pack("<BBHH", number & 0xFF, state & 0xFF, cx, cy)
+    if len(out) > INTERACTION_MAX_CONTENT:
+        raise ValueError(f"sentry roster content too long ({len(out)} > {INTERACTION_MAX_CONTENT} bytes)")
+    return out
 
 
 def hero_range_content(distance_m: float, valid: bool = True) -> bytes:
@@ -372,6 +393,36 @@ def parse_radar_info(data: bytes) -> dict:
     return {"chances": v & 3, "enemy_double_vulnerable": bool(v >> 2 & 1), "encryption_level": v >> 3 & 3, "key_changeable": bool(v >> 5 & 1)}
 
 
+def parse_map_command(data: bytes) -> dict:
+    """0x0303 (the aerial operator's map click, to the radar too): float x, y (m), u8 key, u8 target robot id, then
+    the source id (u16 in the 2026 V2.0.0 text, u8 in some team headers: 11, 12 or 14 bytes accepted)."""
+    if len(data) < 11:
+        raise FrameError(f"0x0303 map command: expected at least 11 bytes, got {len(data)}")
+    x, y, key, target = struct.unpack_from("<ffBB", data)
+    source = data[10] | (data[11] << 8 if len(data) >= 12 else 0)
+    return {"x": x, "y": y, "key": key, "target": target, "source": source}
+
+
+def parse_dart_info(data: bytes, season: int = 2026) -> dict:
+    """0x0105 (3 bytes): u8 dart launch remaining time (s), u16 dart info. 2026 (V2.0.0 表1-11): bits 0-2 the target our
+    dart hit last (0 none, 1 outpost, 2 base fixed, 3 base random fixed, 4 base random moving, 5 base end moving),
+    bits 3-5 hits on it, bits 6-8 the selected target. Before 2026 (UNCERTAIN): bits 0-1, 2-4, 5-6."""
+    if len(data) != 3:
+        raise FrameError(f"0x0105 dart info: expected 3 bytes, got {len(data)}")
+    t, info = data[0], data[1] | (data[2] << 8)
+    if int(season) >= 2026:
+        return {"remaining_s": t, "hit_target": info & 7, "hits": info >> 3 & 7, "selected": info >> 6 & 7, "info": info}
+    return {"remaining_s": t, "hit_target": info & 3, "hits": info >> 2 & 7, "selected": info >> 5 & 3, "info": info}
+
+
+def parse_interaction(data: bytes) -> dict:
+    """0x0301 received: data_cmd_id, sender, receiver, content."""
+    if len(data) < 6:
+        raise FrameError(f"0x0301 interaction: expected at least 6 bytes, got {len(data)}")
+    sub, sender, receiver = struct.unpack_from("<HHH", data)
+    return {"sub_id": sub, "sender": sender, "receiver": receiver, "content": bytes(data[6:])}
+
+
 @dataclass
 class RefereeState:
     """What the radar knows from incoming frames. ``team`` comes from 0x0201 (own robot id 9 -> red, 109 -> blue)."""
@@ -384,6 +435,9 @@ class RefereeState:
     radar_info: dict = field(default_factory=dict)
     frames: dict[int, int] = field(default_factory=dict)  # cmd_id -> count
     errors: int = 0
+    map_command: dict = field(default_factory=dict)  # newest 0x0303 (frames[CMD_MAP_COMMAND] counts them)
+    dart_raw: bytes = b""  # newest 0x0105 data (parse_dart_info with the season)
+    interactions_from: dict[int, int] = field(default_factory=dict)  # 0x0301 sender id -> frames received
 
     def update(self, frame: Frame) -> None:
         self.frames[frame.cmd_id] = self.frames.get(frame.cmd_id, 0) + 1
@@ -396,6 +450,14 @@ class RefereeState:
                 self.mark = parse_radar_mark(frame.data)
             elif frame.cmd_id == CMD_RADAR_INFO:
                 self.radar_info = parse_radar_info(frame.data)
+            elif frame.cmd_id == CMD_MAP_COMMAND:
+                self.map_command = parse_map_command(frame.data)
+            elif frame.cmd_id == CMD_DART_INFO:
+                parse_dart_info(frame.data)
+                self.dart_raw = bytes(frame.data)
+            elif frame.cmd_id == CMD_INTERACTION:
+                sender = parse_interaction(frame.data)["sender"]
+                self.interactions_from[sender] = self.interactions_from.get(sender, 0) + 1
             elif frame.cmd_id == CMD_ROBOT_STATUS and len(frame.data) >= 1:
                 rid = frame.data[0]
                 if rid in range(1, 12) or rid in range(101, 112):

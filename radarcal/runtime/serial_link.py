@@ -22,10 +22,12 @@ __all__ = ["RateLimiter", "referee_limits", "LinkStats", "SerialLink"]
 
 
 def referee_limits(season: int) -> dict[int, float]:
-    """Max send frequency (Hz) per cmd_id: 0x0305 10 Hz (<= 2025) / 5 Hz (2026); 0x0301 10 Hz / 30 Hz."""
-    if int(season) >= 2026:
-        return {rp.CMD_MAP: 5.0, rp.CMD_INTERACTION: 30.0}
-    return {rp.CMD_MAP: 10.0, rp.CMD_INTERACTION: 10.0}
+    """Max send frequency (Hz) per cmd_id from :mod:`radarcal.runtime.referee_season`: 0x0305 10 Hz (<= 2025) /
+    5 Hz (2026); 0x0301 10 Hz / 30 Hz."""
+    from radarcal.runtime.referee_season import KNOWN_SEASONS, rules
+
+    r = rules(min(max(int(season), KNOWN_SEASONS[0]), KNOWN_SEASONS[-1]))
+    return {rp.CMD_MAP: float(r.map_hz.value), rp.CMD_INTERACTION: float(r.interaction_hz.value)}
 
 
 class RateLimiter:

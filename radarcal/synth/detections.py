@@ -71,6 +71,18 @@ class MatchConfig:
     people: int = 4  # walking along the boundary, 0.3-0.9 m outside the field line
     speed: float = 1.5
     station: str = "red"
+    camera_miss: tuple = ()  # ((label, t0, t1), ...): the detector drops that robot in [t0, t1]; the LiDAR still sees it
+    absent: tuple = ()  # ((label, t0, t1), ...): that robot is truly off the field in [t0, t1] (no returns, no box, not in truth)
+
+
+def _in_windows(windows: tuple, label: str, t: np.ndarray) -> np.ndarray:
+    """(T,) bool: ``t`` inside one of the ``(label, t0, t1)`` windows of ``label``."""
+    t = np.asarray(t, float)
+    hit = np.zeros(t.shape, bool)
+    for lab, t0, t1 in windows:
+        if lab == label:
+            hit |= (t >= t0) & (t <= t1)
+    return hit
 
 
 # --- geometry helpers ----------------------------------------------------------------------------------------------
@@ -225,6 +237,11 @@ class _Scene:
             ay = 0.2 * t
             p = np.concatenate([p, a[:, None]], axis=1)
             yaw = np.concatenate([yaw, ay[:, None]], axis=1)
+        for i, lab in enumerate(self.labels):  # off the field: far below the floor behind the station, where no ray reaches
+            gone = _in_windows(self.cfg.absent, lab, t)
+            if gone.any():
+                p = p.copy()
+                p[gone, i] = (-500.0 if self.cfg.station == "red" else self.field.size[0] + 500.0, self.field.size[1] / 2, -1000.0)
         ppl = people_states(self.field, self.cfg.people, t, self.cfg.seed + 202)
         return p, yaw, ppl
 
@@ -376,11 +393,14 @@ def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchC
         last = int(np.searchsorted(t_arrive, t_img[f] + 1e-9, "right")) - 1
         dets, truth = [], []
         for i, lab in enumerate(labels):
+            if _in_windows(cfg.absent, lab, t_img[f : f + 1])[0]:
+                continue  # truly not on the field: no box, not in the truth
             visible = bool(np.isfinite(vb[i, 0]))
             n_vis += visible
+            cam_miss = bool(_in_windows(cfg.camera_miss, lab, t_img[f : f + 1])[0])
             truth.append({"label": lab, "p_field": [_fmt(v) for v in P[f, i]], "visible": visible, "visible_fraction": _fmt(frac[i], 3),
                           "in_view": bool(np.isfinite(full[i, 0])), "lidar_hits": int(hits_per_cloud[last, i]) if last >= 0 else 0,
-                          "xyxy": None if not visible else [_fmt(v, 2) for v in vb[i]]})  # fmt: skip
+                          "xyxy": None if not visible else [_fmt(v, 2) for v in vb[i]], **({"camera_miss": True} if cam_miss else {})})  # fmt: skip
             if not visible or frac[i] < cfg.min_visible or rng_det.random() < cfg.miss:
                 continue
             b = vb[i] + rng_det.normal(0, rng_det.uniform(*cfg.jitter_px), 4)
@@ -390,7 +410,10 @@ def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchC
             if lab.split("_")[1] in ("3", "4") and rng_det.random() < cfg.swap:
                 out_lab = _swap_label(lab)
                 n_swap += 1
-            dets.append({"xyxy": [_fmt(v, 2) for v in b], "label": out_lab, "score": _fmt(rng_det.uniform(0.55, 0.98), 3)})
+            score = _fmt(rng_det.uniform(0.55, 0.98), 3)
+            if cam_miss:  # dropped after its noise was drawn: the other boxes keep the noise of the replay without the window
+                continue
+            dets.append({"xyxy": [_fmt(v, 2) for v in b], "label": out_lab, "score": score})
             n_det += 1
         for _ in range(rng_det.poisson(cfg.false_positives)):
             lab = str(rng_det.choice(_ALL_LABELS))

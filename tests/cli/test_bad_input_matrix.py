@@ -115,6 +115,9 @@ TABLE: dict[str, Cmd] = {
     # tests/cli/test_record_replay.py and tests/io/test_livox.py, not by this matrix
     "record": Cmd(lambda f: [], [], not_files=("OUT", "out", "--bundle", "-b")),
     "synth livox-sim": Cmd(lambda f: [], [], not_files=("--scene",)),
+    "referee-sim": Cmd(lambda f: ["--replay", f["replay"], "--season", "2026", "--start-timeout", "0.1"],
+                       [Opt("--replay", "replay", "folder_in"),
+                        Opt("--record", "text", "output", skip=("is-bundle",), why="referee-sim reads no bundle (the replay's own files are protected)")]),
     "synth radar": Cmd(lambda f: [f["tmp"] / "radar_out", "--scenes", "1"], [Opt(None, "radar_out", "folder_out", index=0)]),
 }
 
