@@ -187,6 +187,18 @@ class Bundle:
             raise InputError(self.path, f"no camera {name!r} in the bundle (cameras: {known})")
         return self.cameras[name].camera
 
+    def resolve_camera(self, name: str | None, option: str = "--camera") -> str:
+        """The camera a per-camera command works on: ``name`` (checked), else the bundle's only camera; several
+        cameras and no name -> an ``InputError`` naming ``option`` and the choices."""
+        if name is not None:
+            self.camera(name)
+            return name
+        if len(self.cameras) == 1:
+            return next(iter(self.cameras))
+        if not self.cameras:
+            raise InputError(self.path, "no camera in the bundle (run `radarcal intrinsics` or `radarcal bundle import` first)")
+        raise InputError(option, f"the bundle has {len(self.cameras)} cameras ({', '.join(sorted(self.cameras))}): pick one with {option}")
+
     def frames(self) -> set[str]:
         out = set(self.cameras) | set(self.sensors)
         for e in self.transforms.values():
@@ -509,12 +521,17 @@ def save_bundle(bundle: Bundle, path: str | os.PathLike | None = None) -> Path:
     return path
 
 
+def session_file_path(bundle: Bundle, key: str) -> Path:
+    """Where :func:`save_session` writes ``key``: ``<bundle folder>/<bundle stem>.sessions/<key with / as __>.npz``."""
+    return bundle.path.parent / f"{bundle.path.stem}.sessions" / (key.replace("/", "__") + ".npz")
+
+
 def save_session(bundle: Bundle, key: str, arrays: dict[str, np.ndarray], meta: dict | None = None) -> Path:
     """Store what a report needs (observations, residuals, per-view poses) next to the bundle as an ``.npz``
     and reference it from ``bundle.sessions[key]`` (save the bundle afterwards)."""
     if bundle.path is None:
         raise ValueError("save_session needs a bundle with a path")
-    rel = Path(f"{bundle.path.stem}.sessions") / (key.replace("/", "__") + ".npz")
+    rel = session_file_path(bundle, key).relative_to(bundle.path.parent)
     buf = _io.BytesIO()
     import json
 

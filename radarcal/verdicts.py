@@ -2,7 +2,8 @@
 recorded checks failed: listed by ``bundle validate``, the report and ``run`` so that nobody uses them unawares.
 
 A command that stores against its verdict records why: ``cameras.<c>.extra.forced``, ``transforms.<T>.residual.forced``
-or ``runtime.hero_range_offset_forced`` (a list of reasons / a reason)."""
+or ``runtime.hero_range_offset_forced`` (a list of reasons / a reason). Camera pairs whose field poses disagree
+(:func:`radarcal.pnp.cross_check.cross_check_flags`) are listed too."""
 
 from __future__ import annotations
 
@@ -33,4 +34,6 @@ def forced_entries(bundle) -> list[str]:
     forced = _reasons((bundle.runtime or {}).get("hero_range_offset_forced"))
     if forced:
         out.append(f"runtime.hero_range_offset_m: stored with --force although {'; '.join(forced)}")
-    return out
+    from radarcal.pnp.cross_check import cross_check_flags  # two cameras that disagree on the same field point
+
+    return out + cross_check_flags(bundle)

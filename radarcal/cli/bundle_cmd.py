@@ -29,7 +29,11 @@ def _summary(b) -> dict:
         xyz_rpy = geometry.T_to_xyz_rpy_deg(e.T)
         tfs[n] = {"target": e.target, "source": e.source, "T": e.T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "method": e.method, "residual": e.residual, "sigma": e.sigma,
                   "readout": _readout(b, e)}
-    return {"path": str(b.path), "cameras": cams, "sensors": b.sensors, "transforms": tfs, "field": (b.field_model or {}).get("name"), "runtime": b.runtime, "sessions": b.sessions}
+    from radarcal.pnp.cross_check import bundle_cross_checks, format_agreement
+
+    checks = [{**vars(p), "text": format_agreement(p)} for p in bundle_cross_checks(b)]  # how well the cameras agree on the same field point
+    return {"path": str(b.path), "cameras": cams, "sensors": b.sensors, "transforms": tfs, "field": (b.field_model or {}).get("name"), "runtime": b.runtime, "sessions": b.sessions,
+            "cross_check": checks}
 
 
 def _readout(b, e) -> str | None:
@@ -77,6 +81,8 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: JsonO
         if s["field"]:
             typer.echo(f"  field: {s['field']}")
         typer.echo(f"  runtime: {s['runtime']}")
+        for c in s["cross_check"]:
+            typer.echo(f"  cross-check {c['text']}")
 
     emit(_summary(b), as_json, human)
 
@@ -177,6 +183,9 @@ def set_transform(
     T = read_transform(file)
     b = load_or_create_bundle(bundle)
     b.set_transform(target, source, T, method="manual (set-transform)", provenance=Provenance(command=command_line(), inputs_sha256=hash_inputs([file])))
+    from radarcal.extrinsics.lidar_camera_chain import refresh_derived
+
+    refresh_derived(b, command_line())  # transforms derived through a stereo pair follow the new entry
     save_bundle(b, bundle)
     xyz_rpy = geometry.T_to_xyz_rpy_deg(T)
     summary = {"name": f"T_{target}_{source}", "target": target, "source": source, "T": T, "xyz_m": xyz_rpy[:3], "rpy_deg": xyz_rpy[3:], "bundle": str(bundle)}

@@ -297,6 +297,9 @@ def intrinsics(
         b.set_transform(right_camera, camera, st.T_cam1_cam0, method="intrinsics --right (board pairs, " + ("mono intrinsics fixed)" if fix_intrinsics else "jointly with both cameras' intrinsics)"), residual={"rms_px": st.rms_px, "pairs": st.n_pairs, "baseline_m": st.baseline_m}, sigma=st.sigma, provenance=prov)
         StereoSession.from_result(camera, right_camera, st, pair_names).save(b, f"stereo/{camera}_{right_camera}")
         summary["stereo"] = {"T": f"T_{right_camera}_{camera}", "T_cam1_cam0": st.T_cam1_cam0, "baseline_m": st.baseline_m, "sigma": st.sigma, "rms_px": st.rms_px, "pairs": st.n_pairs}
+        from radarcal.extrinsics.lidar_camera_chain import refresh_derived  # the other camera's LiDAR / field poses through the pair
+
+        summary["stereo"]["derived"] = refresh_derived(b, command_line())
     if store:
         save_bundle(b)
 

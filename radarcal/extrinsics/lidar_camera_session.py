@@ -18,6 +18,7 @@ __all__ = ["LidarCameraSession"]
 @dataclass
 class LidarCameraSession(SessionRecord):
     KIND = "lidar_camera"
+    PATH_FIELDS = ("pairs",)  # [[image, cloud], ...]
     ARRAY_DICT_KEYS = r"scene\d+_"  # scene<k>_lidar_xyz / _uv / _line_point / _line_normal of the final matching
 
     T_init: np.ndarray | None = None

@@ -18,6 +18,7 @@ __all__ = ["IntrinsicsSession", "StereoSession"]
 @dataclass
 class IntrinsicsSession(SessionRecord):
     KIND = "intrinsics"
+    PATH_FIELDS = ("names",)  # the input files
 
     # every input, in order, and why it was not used ("used" otherwise)
     names: np.ndarray | None = None  # (I,) str

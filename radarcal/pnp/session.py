@@ -20,6 +20,7 @@ __all__ = ["FieldPnPSession"]
 @dataclass
 class FieldPnPSession(SessionRecord):
     KIND = "field_pnp"
+    PATH_FIELDS = ("image",)  # the image drawn under the picks
 
     names: np.ndarray | None = None  # (N,) landmark names
     uv: np.ndarray | None = None  # (N,2) picked pixels

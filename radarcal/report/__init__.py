@@ -15,6 +15,15 @@ from radarcal.report.field import (
     picks_residual_figure,
 )
 from radarcal.report.html import Section, Table, render_html
+from radarcal.report.radar import (
+    detection_category,
+    radar_points_in_main,
+    radar_sigma_figure,
+    radar_top_view_figure,
+    rcs_range_figure,
+    reflector_residuals_figure,
+)
+from radarcal.teams import team_of, track_colours
 from radarcal.report.intrinsics import (
     coverage_figure,
     coverage_grid,
@@ -71,4 +80,13 @@ __all__ = [
     "localisation_error_figure",
     "minimap_tracks_figure",
     "error_over_time_figure",
+    "track_colours",
+    "team_of",
+    # radar-lidar
+    "detection_category",
+    "radar_points_in_main",
+    "reflector_residuals_figure",
+    "radar_top_view_figure",
+    "rcs_range_figure",
+    "radar_sigma_figure",
 ]

@@ -7,7 +7,7 @@ import io
 
 import numpy as np
 
-__all__ = ["new_figure", "figure_to_png", "auto_arrow_scale", "image_extent", "show_image", "show"]
+__all__ = ["new_figure", "figure_to_png", "auto_arrow_scale", "image_extent", "show_image", "show", "point_size_pt2", "MIN_POINT_DIAMETER_PT"]
 
 
 def new_figure(width_in: float = 7.0, height_in: float = 4.5, nrows: int = 1, ncols: int = 1, **subplot_kw):
@@ -36,6 +36,17 @@ def auto_arrow_scale(vectors: np.ndarray, image_size: tuple[int, int], fraction:
     p95 = float(np.percentile(n, 95)) if n.size else 0.0
     diag = float(np.hypot(*image_size))
     return fraction * diag / p95 if p95 > 0 else 1.0
+
+
+MIN_POINT_DIAMETER_PT = 2.0  # 2.7 px at the report's 96 dpi: the smallest dot that stays visible in the page
+
+
+def point_size_pt2(image_width_px: int, panel_width_in: float, image_px: float = 1.5, min_diameter_pt: float = MIN_POINT_DIAMETER_PT) -> float:
+    """Marker area (pt², matplotlib's scatter ``s``) of a dot ``image_px`` image pixels wide on an image drawn
+    ``panel_width_in`` inches wide, never smaller than ``min_diameter_pt`` across (a 1920-px image in an 8-inch panel
+    has 0.3 pt per image pixel: a 1-pixel dot would vanish)."""
+    pt_per_px = 72.0 * float(panel_width_in) / max(float(image_width_px), 1.0)
+    return max(min_diameter_pt, image_px * pt_per_px) ** 2
 
 
 def image_extent(image_size: tuple[int, int]) -> tuple[float, float, float, float]:

@@ -16,7 +16,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from radarcal.bundle import Bundle, load_session, read_session_file
+from radarcal.bundle import Bundle, read_session_file
 from radarcal.camera import Camera
 from radarcal.errors import InputError
 from radarcal.extrinsics.lidar_camera_session import LidarCameraSession
@@ -26,9 +26,10 @@ from radarcal.report.field_section import FieldData, field_data, field_drawing_a
 from radarcal.report.html import Section, Table
 from radarcal.report.intrinsics_section import IntrinsicsData, intrinsics_data, intrinsics_section, stereo_section
 from radarcal.report.lidar_camera_section import LidarCameraData, lidar_camera_data, lidar_camera_section
-from radarcal.report.sections_common import camera_param_table, read_cloud_file, read_image_file
+from radarcal.report.radar_section import radar_lidar_section
+from radarcal.report.sections_common import camera_param_table, read_cloud_file, read_image_file, resolve_file
 
-__all__ = ["ReportContent", "build_report", "discover_sessions", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data"]
+__all__ = ["ReportContent", "build_report", "discover_sessions", "session_files", "session_base", "resolve_file", "read_tracks", "field_drawing_args", "IntrinsicsData", "intrinsics_data", "FieldData", "field_data", "LidarCameraData", "lidar_camera_data"]
 
 
 @dataclass
@@ -46,21 +47,32 @@ def discover_sessions(bundle: Bundle, session_dir: str | os.PathLike | None = No
     """All sessions: those referenced by the bundle (looked up in ``session_dir`` by file name when given, for a
     bundle whose session folder moved) plus any other ``*.npz`` in ``session_dir`` (key from the file name,
     ``intrinsics__cam0.npz`` → ``intrinsics/cam0``)."""
-    out: dict[str, tuple[dict, dict]] = {}
+    return {k: (a, m) for k, (a, m, _) in session_files(bundle, session_dir).items()}
+
+
+def session_files(bundle: Bundle, session_dir: str | os.PathLike | None = None) -> dict[str, tuple[dict, dict, Path]]:
+    """As :func:`discover_sessions`, with the path of each session file (files it names are relative to its folder)."""
+    out: dict[str, tuple[dict, dict, Path]] = {}
     sdir = Path(session_dir) if session_dir is not None else None
     if sdir is not None and not sdir.is_dir():
         raise InputError(sdir, "session directory not found")
+    home = bundle.path.parent if bundle.path else Path(".")
     for key, rel in sorted(bundle.sessions.items()):
-        if sdir is not None and (sdir / Path(rel).name).is_file():
-            out[key] = read_session_file(sdir / Path(rel).name)
-        else:
-            out[key] = load_session(bundle, key)
+        p = sdir / Path(rel).name if sdir is not None and (sdir / Path(rel).name).is_file() else home / rel
+        out[key] = (*read_session_file(p), p)
     if sdir is not None:
         for p in sorted(sdir.glob("*.npz")):
             key = p.stem.replace("__", "/")
             if key not in out:
-                out[key] = read_session_file(p)
+                out[key] = (*read_session_file(p), p)
     return out
+
+
+def session_base(bundle: Bundle, key: str) -> list[Path]:
+    """Where files named in the bundle's session ``key`` are looked for, in order: the session file's folder (how the
+    commands store them), then the bundle's folder (files written before); for :func:`resolve_file`."""
+    home = bundle.path.parent if bundle.path else Path(".")
+    return [home / Path(bundle.sessions[key]).parent, home] if key in bundle.sessions else [home]
 
 
 def _overview(bundle: Bundle, skip_cameras: set[str] = frozenset()) -> Section:
@@ -92,7 +104,8 @@ def _overview(bundle: Bundle, skip_cameras: set[str] = frozenset()) -> Section:
 
 
 # --- the whole report --------------------------------------------------------------------------------------------------
-def _intrinsics(bundle: Bundle, key: str, arrays: dict, meta: dict, content: ReportContent, base: Path | None) -> None:
+# ``base``: where files named in the session are looked for, in order (the session file's folder, the bundle's)
+def _intrinsics(bundle: Bundle, key: str, arrays: dict, meta: dict, content: ReportContent, base: list[Path]) -> None:
     cam_name = key.partition("/")[2]
     if cam_name in bundle.cameras:
         cam, entry = bundle.cameras[cam_name].camera, bundle.cameras[cam_name]
@@ -105,7 +118,7 @@ def _intrinsics(bundle: Bundle, key: str, arrays: dict, meta: dict, content: Rep
     content.sections.append(intrinsics_section(cam_name, cam, arrays, meta, entry, None, content.skipped, base))
 
 
-def _lidar_camera(bundle: Bundle, key: str, arrays: dict, meta: dict, content: ReportContent, base: Path | None) -> None:
+def _lidar_camera(bundle: Bundle, key: str, arrays: dict, meta: dict, content: ReportContent, base: list[Path]) -> None:
     s = LidarCameraSession.from_parts(arrays, meta, key)
     rest = key.partition("/")[2]
     cam_name = s.camera or rest.partition("_")[0]
@@ -121,7 +134,7 @@ def _lidar_camera(bundle: Bundle, key: str, arrays: dict, meta: dict, content: R
     content.sections.append(lidar_camera_section(key, bundle.cameras[cam_name].camera, arrays, meta, T_b, img, content.skipped, entry.sigma if entry else None, pts))
 
 
-def _field_pnp(bundle: Bundle, key: str, arrays: dict, meta: dict, content: ReportContent, base: Path | None) -> None:
+def _field_pnp(bundle: Bundle, key: str, arrays: dict, meta: dict, content: ReportContent, base: list[Path]) -> None:
     cam_name = key.partition("/")[2]
     s = FieldPnPSession.from_parts(arrays, meta, key)
     cam = bundle.cameras[cam_name].camera if cam_name in bundle.cameras else None
@@ -130,19 +143,26 @@ def _field_pnp(bundle: Bundle, key: str, arrays: dict, meta: dict, content: Repo
     content.sections.append(field_section(cam_name, cam, arrays, meta, bundle.field(), T, img, content.skipped))
 
 
-_SECTIONS = {"intrinsics": _intrinsics, "lidar_camera": _lidar_camera, "field_pnp": _field_pnp}
-_ORDER = {"intrinsics": 0, "stereo": 1, "lidar_camera": 2, "field_pnp": 3}
+def _radar_lidar(bundle: Bundle, key: str, arrays: dict, meta: dict, content: ReportContent, base: list[Path]) -> None:
+    content.sections.append(radar_lidar_section(key, arrays, meta, bundle.transforms, content.skipped))
+
+
+_SECTIONS = {"intrinsics": _intrinsics, "lidar_camera": _lidar_camera, "field_pnp": _field_pnp, "radar_lidar": _radar_lidar}
+_ORDER = {"intrinsics": 0, "stereo": 1, "lidar_camera": 2, "field_pnp": 3, "radar_lidar": 4}
 
 
 def build_report(bundle: Bundle, session_dir: str | os.PathLike | None = None, tracks: str | os.PathLike | None = None, truth_tracks: str | os.PathLike | None = None) -> ReportContent:
     """All sections the bundle's sessions (and an optional run track file) allow."""
     content = ReportContent()
-    sessions = discover_sessions(bundle, session_dir)
-    base = bundle.path.parent if bundle.path else None
+    sessions = session_files(bundle, session_dir)
+    home = bundle.path.parent if bundle.path else None
     with_intrinsics = {k.partition("/")[2] for k in sessions if k.startswith("intrinsics/")}
     content.sections.append(_overview(bundle, skip_cameras=with_intrinsics))
-    for key, (arrays, meta) in sorted(sessions.items(), key=lambda kv: (_ORDER.get(kv[0].partition("/")[0], 9), kv[0])):
+    for key, (arrays, meta, path) in sorted(sessions.items(), key=lambda kv: (_ORDER.get(kv[0].partition("/")[0], 9), kv[0])):
         kind = key.partition("/")[0]
+        # files named in the session: relative to its folder; when --session found it elsewhere, relative to the
+        # folder the bundle puts it in (the data stayed with the bundle); then the bundle's folder (older files)
+        base = [path.parent, *([home / Path(bundle.sessions[key]).parent] if key in bundle.sessions and home is not None else []), home]
         try:
             if kind in _SECTIONS:
                 _SECTIONS[kind](bundle, key, arrays, meta, content, base)

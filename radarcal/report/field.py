@@ -12,6 +12,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from radarcal.report._common import auto_arrow_scale, new_figure, show_image
+from radarcal.teams import track_colours
 
 __all__ = [
     "draw_field",
@@ -132,15 +133,13 @@ def localisation_error_figure(x_grid: np.ndarray, y_grid: np.ndarray, sigma_m: n
 
 def minimap_tracks_figure(size: tuple[float, float], tracks: Mapping[str, np.ndarray], truth: Mapping[str, np.ndarray] | None = None, outline: Sequence[np.ndarray] | None = None, landmarks: Mapping[str, Sequence[float]] | None = None, title: str = "Minimap: tracks"):
     """Each robot's track (``tracks[label]`` = (N, 2+) field x, y[, …]) as a line with its last position marked;
-    ``truth`` tracks (same labels) dashed."""
+    ``truth`` tracks (same labels) dashed. Colours by team (:mod:`radarcal.teams`)."""
     fig, ax = new_figure(8.0, 8.0 * size[1] / size[0] + 0.8)
     draw_field(ax, size, outline, landmarks, label_landmarks=False)
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab10"]
-    for i, (label, xy) in enumerate(sorted(tracks.items())):
+    colours = track_colours(tracks)
+    for label, xy in sorted(tracks.items()):
         p = np.asarray(xy, float).reshape(len(xy), -1)[:, :2]
-        col = cmap(i % 10)
+        col = colours[label]
         ax.plot(p[:, 0], p[:, 1], "-", color=col, lw=1.2, label=str(label), zorder=4)
         ok = np.all(np.isfinite(p), axis=1)
         if ok.any():
@@ -156,15 +155,14 @@ def minimap_tracks_figure(size: tuple[float, float], tracks: Mapping[str, np.nda
 
 
 def error_over_time_figure(t: Mapping[str, np.ndarray], error_m: Mapping[str, np.ndarray], title: str = "Localisation error over time"):
-    """Per-robot error (m) against time (s), with the overall median and 95th percentile as horizontal lines."""
+    """Per-robot error (m) against time (s), with the overall median and 95th percentile as horizontal lines; colours
+    by team as on the minimap."""
     fig, ax = new_figure(8.0, 3.6)
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab10"]
+    colours = track_colours(error_m)
     allerr = []
-    for i, label in enumerate(sorted(error_m)):
+    for label in sorted(error_m):
         e = np.asarray(error_m[label], float).ravel()
-        ax.plot(np.asarray(t[label], float).ravel(), e, "-", lw=0.9, color=cmap(i % 10), label=str(label))
+        ax.plot(np.asarray(t[label], float).ravel(), e, "-", lw=0.9, color=colours[label], label=str(label))
         allerr.append(e[np.isfinite(e)])
     a = np.concatenate(allerr) if allerr else np.zeros(0)
     if a.size:

@@ -16,7 +16,7 @@ from radarcal.errors import InputError
 from radarcal.pnp.session import FieldPnPSession
 from radarcal.report import field as rf
 from radarcal.report.html import Section
-from radarcal.report.sections_common import FigureAdder, str_list
+from radarcal.report.sections_common import FigureAdder, note_missing_image, str_list
 
 __all__ = ["field_drawing_args", "FieldData", "field_data", "field_section", "read_tracks", "run_section"]
 
@@ -51,6 +51,7 @@ class FieldData:
     error_maps: dict[str, np.ndarray] = field(default_factory=dict)  # label -> (ny, nx) 1σ error (m)
     rms_px: float | None = None
     depth_source: str | None = None
+    image_name: str = ""  # the image the picks were made on, as the session names it
     warnings: list[str] = field(default_factory=list)
 
 
@@ -72,6 +73,7 @@ def field_data(arrays: dict, meta: dict, T_cam_field: np.ndarray | None = None) 
         d.error_maps["ground-plane fallback (no depth)"] = s.sigma_ground
     d.rms_px = s.rms_px
     d.depth_source = s.depth_source or None
+    d.image_name = s.image or ""
     d.warnings = [str(w) for w in s.warnings or []]
     return d
 
@@ -85,6 +87,8 @@ def field_section(camera_name: str, camera: Camera | None, arrays: dict, meta: d
         sec.add(f"warning: {w}")
     add("field and landmarks", lambda: rf.field_landmarks_figure(fa["size"], fa["landmarks"], d.T_cam_field, d.names, fa["outline"]), {"field model": fa or None})
     size = camera.image_size if camera is not None else (1280, 1024)
+    if image is None and d.uv_picked is not None:
+        note_missing_image(sec, add.skipped, "picks and residuals", d.image_name)
     add("picks and residuals", lambda: rf.picks_residual_figure(size, d.names, d.uv_picked, d.uv_reprojected, image, outlier=d.pick_outlier), {"picked pixels": d.uv_picked, "reprojected landmarks": d.uv_reprojected})
     if not d.error_maps:
         add("localisation error map", lambda: None, {"error map": None})
@@ -95,16 +99,19 @@ def field_section(camera_name: str, camera: Camera | None, arrays: dict, meta: d
 
 
 # --- run tracks ---------------------------------------------------------------------------------------------------------
-def read_tracks(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+def read_tracks(path: str | os.PathLike, what: str = "track file") -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
     """A ``radarcal run`` track file (JSON lines, one per frame: ``{"t": s, "robots": [{"label", "x", "y", "z"}]}``) or
-    a ``synth field`` ``truth.jsonl`` (robots with ``p_field`` [x, y, z]) -> (times per label, field xyz (N, 3) per label)."""
+    a ``synth field`` ``truth.jsonl`` (robots with ``p_field`` [x, y, z]) -> (times per label, field xyz (N, 3) per label).
+    ``InputError`` naming the file: missing, a folder, not text, a line that is not a track record, no robot position,
+    a non-finite time or position."""
+    from radarcal.errors import read_text
+
     path = Path(path)
+    if path.is_dir():
+        raise InputError(path, f"is a folder, expected a {what}")
     t_by: dict[str, list[float]] = {}
     p_by: dict[str, list[list[float]]] = {}
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except OSError as e:
-        raise InputError(path, f"cannot read track file ({e.__class__.__name__})") from None
+    lines = read_text(path, what).splitlines()
     for i, line in enumerate(lines, 1):
         if not line.strip():
             continue
@@ -119,7 +126,13 @@ def read_tracks(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict[st
                 p_by.setdefault(str(r["label"]), []).append(p)
         except (ValueError, TypeError, AttributeError, KeyError) as e:
             raise InputError(path, f"line {i}: not a track record ({e.__class__.__name__}: {e})") from None
-    return ({k: np.asarray(v) for k, v in t_by.items()}, {k: np.asarray(v, float).reshape(-1, 3) for k, v in p_by.items()})
+    if not p_by:
+        raise InputError(path, f"no robot positions in the {what} (expected JSON lines {{\"t\", \"robots\": [{{\"label\", \"x\", \"y\"}}]}} as written by radarcal run --out)")
+    times = {k: np.asarray(v, float) for k, v in t_by.items()}
+    xyz = {k: np.asarray(v, float).reshape(-1, 3) for k, v in p_by.items()}
+    if not all(np.all(np.isfinite(v)) for v in (*times.values(), *xyz.values())):
+        raise InputError(path, f"non-finite time or position in the {what}")
+    return times, xyz
 
 
 def _robot_xyz(r: dict) -> list[float] | None:

@@ -113,7 +113,7 @@ def intrinsics_data(arrays: dict, meta: dict, camera: Camera, rms_px: float | No
     return d
 
 
-def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dict, entry=None, image: np.ndarray | None = None, skipped: list[str] | None = None, base: Path | None = None) -> Section:
+def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dict, entry=None, image: np.ndarray | None = None, skipped: list[str] | None = None, base: Path | list[Path] | None = None) -> Section:
     """Every intrinsics figure the session allows."""
     sec = Section(f"Intrinsics: {camera_name}")
     add = FigureAdder(sec, skipped if skipped is not None else [])
@@ -127,18 +127,38 @@ def intrinsics_section(camera_name: str, camera: Camera, arrays: dict, meta: dic
         sec.add(f"warning: {w}")
     add("per-view error", lambda: ri.per_view_error_figure(d.view_names, d.view_error, d.view_outlier, None, d.rms_px, ylabel=d.view_error_label), {"per-view errors": d.view_error})
     add("residual vectors", lambda: ri.residual_vectors_figure(d.uv, d.residual, size, image=image, outlier=d.corner_outlier, title="Residual vectors, all views"), {"corner pixels": d.uv, "residuals": d.residual})
-    k = d.worst_view()
-    if k is not None and d.corner_view is not None and k < len(d.view_files) and d.uv is not None and d.residual is not None:
-        img = read_image_file(d.view_files[k], base)
-        if img is not None:
-            m = d.view_mask(k)
-            sec.add(ri.residual_vectors_figure(np.asarray(d.uv)[m], np.asarray(d.residual)[m], size, image=img, outlier=None if d.corner_outlier is None else np.asarray(d.corner_outlier)[m], title=f"Residual vectors on the worst kept view, {d.view_names[k]}"))
+    _worst_view_with_image(sec, add.skipped, d, size, base)
     add("residual histogram", lambda: ri.residual_histogram_figure(d.inlier_residuals(), d.noise_px, title="Residuals (inliers) against the expected noise"), {"residuals": d.residual})
     add("coverage", lambda: ri.coverage_figure(d.uv, size), {"corner pixels": d.uv})
     add("projection uncertainty", lambda: ri.uncertainty_map_figure(d.sigma_u, d.sigma_v, d.sigma_px, size, d.valid_threshold_px, d.uv), {"uncertainty grid": d.sigma_px, "grid u": d.sigma_u, "grid v": d.sigma_v})
     add("distortion field", lambda: ri.distortion_figure(d.camera))
     add("cross-validation", lambda: ri.crossval_difference_figure(d.cv_u, d.cv_v, d.cv_diff_px, size, d.cv_sigma_px), {"cross-validation difference": d.cv_diff_px, "grid u": d.cv_u, "grid v": d.cv_v})
     return sec
+
+
+def _worst_view_with_image(sec: Section, skipped: list[str], d: IntrinsicsData, size: tuple[int, int], base) -> None:
+    """Residual vectors over the image of the worst kept view; when its file is gone, over the worst kept view whose
+    image is still there (said in the title and as a note); nothing but a note when no image is found."""
+    if d.view_error is None or d.corner_view is None or d.uv is None or d.residual is None or not d.view_files:
+        return
+    e = np.asarray(d.view_error, float).copy()
+    kept = np.ones(e.size, bool) if d.view_outlier is None or np.all(d.view_outlier) else ~np.asarray(d.view_outlier, bool)
+    order = [int(k) for k in np.argsort(-np.where(np.isfinite(e) & kept, e, -np.inf), kind="stable") if kept[k] and k < len(d.view_files)]
+    for rank, k in enumerate(order):
+        img = read_image_file(d.view_files[k], base)
+        if img is None:
+            continue
+        m = d.view_mask(k)
+        which = "the worst kept view" if rank == 0 else f"the worst kept view with its image on disk ({rank} worse without)"
+        if rank:
+            skipped.append(f"{sec.title}: residual vectors over {d.view_names[order[0]]} (the worst kept view) drawn over {d.view_names[k]} instead (image not found)")
+            sec.add(f"residual vectors over the worst kept view ({d.view_names[order[0]]}): its image is not found; drawn over {d.view_names[k]}, the worst kept view whose image is.")
+        sec.add(ri.residual_vectors_figure(np.asarray(d.uv)[m], np.asarray(d.residual)[m], size, image=img, outlier=None if d.corner_outlier is None else np.asarray(d.corner_outlier)[m],
+                                           title=f"Residual vectors on {which}, {d.view_names[k]}"))  # fmt: skip
+        return
+    if order:
+        skipped.append(f"{sec.title}: residual vectors over a view's image skipped (no image of the kept views found next to the session or the bundle)")
+        sec.add("residual vectors over a view's image: not drawn (no image of the kept views is found next to the session file or the bundle).")
 
 
 def stereo_section(key: str, arrays: dict, meta: dict, skipped: list[str] | None = None) -> Section:

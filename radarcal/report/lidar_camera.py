@@ -12,7 +12,7 @@ import numpy as np
 from radarcal.camera import Camera
 from radarcal.extrinsics.pose_params import PARAM_NAMES  # one definition of the pose parameters (re-exported)
 from radarcal.extrinsics.pose_params import parameter_profiles as cost_profiles  # the one profile evaluator (re-exported)
-from radarcal.report._common import new_figure, show_image
+from radarcal.report._common import new_figure, point_size_pt2, show_image
 
 __all__ = [
     "PARAM_NAMES",
@@ -44,13 +44,17 @@ def project_cloud(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.ndar
     return uv[order], z[order]
 
 
-def cloud_overlay_figure(image: np.ndarray | None, camera: Camera, points_lidar: np.ndarray, transforms: dict[str, np.ndarray] | Sequence[tuple[str, np.ndarray]], max_points: int | None = 60_000, depth_range: tuple[float, float] | None = None, point_size: float = 0.6, title: str = "LiDAR over the image (coloured by depth)"):
+def cloud_overlay_figure(image: np.ndarray | None, camera: Camera, points_lidar: np.ndarray, transforms: dict[str, np.ndarray] | Sequence[tuple[str, np.ndarray]], max_points: int | None = 60_000, depth_range: tuple[float, float] | None = None, point_size: float | None = None, title: str = "LiDAR over the image (coloured by depth)"):
     """One panel per labelled ``T_cam_lidar`` (e.g. ``{"before": T0, "after": T1}``): the cloud projected onto the
-    image, coloured by camera depth with a shared colour scale."""
+    image, coloured by camera depth with a shared colour scale. ``point_size`` (pt², scatter ``s``): by default sized to
+    the figure's scale (:func:`radarcal.report._common.point_size_pt2`), so points stay visible on large images."""
     items = list(transforms.items()) if isinstance(transforms, dict) else list(transforms)
     n = len(items)
     w, h = camera.image_size
-    fig, axes = new_figure(6.0 * n if n > 1 else 8.0, (6.0 if n > 1 else 8.0) * h / w + 0.8, 1, n)
+    panel_in = 6.0 if n > 1 else 8.0
+    fig, axes = new_figure(panel_in * n, panel_in * h / w + 0.8, 1, n)
+    if point_size is None:
+        point_size = point_size_pt2(w, panel_in)
     axes = np.atleast_1d(axes)
     projected = [project_cloud(camera, T, points_lidar, max_points, return_count=True) for _, T in items]
     if depth_range is None:

@@ -13,7 +13,7 @@ from radarcal.extrinsics.lidar_camera_session import LidarCameraSession
 from radarcal.report import field as rf
 from radarcal.report import lidar_camera as rl
 from radarcal.report.html import Section, Table
-from radarcal.report.sections_common import FigureAdder
+from radarcal.report.sections_common import FigureAdder, note_missing_image
 
 __all__ = ["LidarCameraData", "lidar_camera_data", "lidar_camera_section"]
 
@@ -31,7 +31,8 @@ class LidarCameraData:
     residual_before_px: np.ndarray | None = None
     profile_offsets: np.ndarray | None = None  # (6, n) rx ry rz (rad) tx ty tz (m)
     profile_costs: np.ndarray | None = None  # (6, n)
-    sigma6: np.ndarray | None = None  # rx ry rz (rad) tx ty tz (m)
+    sigma6: np.ndarray | None = None  # rx ry rz (rad) tx ty tz (m): the one shaded on the profiles (first of sigmas)
+    sigmas: dict[str, np.ndarray] = field(default_factory=dict)  # what the σ was computed by -> sigma6, bootstrap first
     robust_scale_px: float | None = None
     image_files: list[str] = field(default_factory=list)
     cloud_files: list[str] = field(default_factory=list)
@@ -41,6 +42,21 @@ class LidarCameraData:
     converged: bool | None = None
     method: str = ""
     warnings: list[str] = field(default_factory=list)
+
+
+# bundle σ keys of a LiDAR-camera transform, by what computed them (the more honest one first)
+SIGMA_SOURCES = {"block bootstrap": ("edge_bootstrap_rot_deg", "edge_bootstrap_trans_m"), "Jacobian": ("edge_rot_deg", "edge_trans_m")}
+
+
+def sigma_sources(transform_sigma: dict | None) -> dict[str, np.ndarray]:
+    """The σ of a LiDAR-camera transform entry by what computed it: ``{"block bootstrap": sigma6, "Jacobian": sigma6}``
+    (those stored; sigma6 = rx ry rz (rad) tx ty tz (m))."""
+    ts = transform_sigma or {}
+    out = {}
+    for name, (rot_key, trans_key) in SIGMA_SOURCES.items():
+        if rot_key in ts and trans_key in ts:
+            out[name] = np.r_[np.radians(np.asarray(ts[rot_key], float).ravel()), np.asarray(ts[trans_key], float).ravel()]
+    return out
 
 
 def lidar_camera_data(arrays: dict, meta: dict, T_final: np.ndarray | None = None, transform_sigma: dict | None = None) -> LidarCameraData:
@@ -58,10 +74,8 @@ def lidar_camera_data(arrays: dict, meta: dict, T_final: np.ndarray | None = Non
         d.edge_residual_px = np.abs(np.asarray(s.residuals_after, float).ravel())[: len(d.edge_uv_lidar)]  # scene 0 comes first
     d.residual_before_px = s.residuals_before
     d.profile_offsets, d.profile_costs = s.profile_offsets, s.profile_costs
-    ts = transform_sigma or {}
-    for rot_key, trans_key in (("edge_bootstrap_rot_deg", "edge_bootstrap_trans_m"), ("edge_rot_deg", "edge_trans_m")):  # the more honest one first
-        if d.sigma6 is None and rot_key in ts and trans_key in ts:
-            d.sigma6 = np.r_[np.radians(np.asarray(ts[rot_key], float).ravel()), np.asarray(ts[trans_key], float).ravel()]
+    d.sigmas = sigma_sources(transform_sigma)
+    d.sigma6 = next(iter(d.sigmas.values()), None)  # the more honest one (block bootstrap) first
     if s.pnp_p_lidar is not None and s.pnp_uv is not None:
         d.pick_p_lidar, d.pick_uv = np.asarray(s.pnp_p_lidar, float), np.asarray(s.pnp_uv, float)
         d.pick_flagged = None if s.pnp_flagged is None else np.asarray(s.pnp_flagged, bool)
@@ -94,12 +108,17 @@ def lidar_camera_section(key: str, camera: Camera, arrays: dict, meta: dict, T_f
 
         add("manual correspondences", picks)
     transforms = {k: v for k, v in (("before", d.T_init), ("after", d.T_final)) if v is not None}
+    if image is None and (d.points_lidar is not None or d.edge_uv_lidar is not None or d.pick_uv is not None):
+        note_missing_image(sec, add.skipped, "LiDAR-camera figures", d.image_files[0] if d.image_files else None)
     add("cloud over image", lambda: rl.cloud_overlay_figure(image, camera, d.points_lidar, transforms), {"cloud points": d.points_lidar, "a transform": transforms or None})
     add("edge matches", lambda: rl.edge_matches_figure(image, camera.image_size, d.edge_uv_lidar, d.edge_uv_image, d.edge_residual_px), {"projected edge points": d.edge_uv_lidar, "matched image points": d.edge_uv_image})
     add("edge residual histogram", lambda: rl.edge_residual_histogram_figure(d.edge_residual_px, d.robust_scale_px, before_px=d.residual_before_px), {"edge residuals": d.edge_residual_px})
     deg = math.degrees(1.0)
     add("cost profiles", lambda: rl.cost_profile_figure(d.profile_offsets, d.profile_costs, display_scale=[deg] * 3 + [1.0] * 3, sigma=d.sigma6), {"cost profiles": d.profile_costs, "profile offsets": d.profile_offsets})
-    if d.sigma6 is not None:
-        rows = [[n, f"{v * (deg if i < 3 else 1):.4g}", "deg" if i < 3 else "m"] for i, (n, v) in enumerate(zip(rl.PARAM_NAMES, d.sigma6))]
-        sec.add(Table(["parameter", "σ", "unit"], rows, caption="σ of the result (from the Jacobian)"))
+    if d.sigmas:
+        kinds = list(d.sigmas)
+        rows = [[n, *(f"{d.sigmas[k][i] * (deg if i < 3 else 1):.4g}" for k in kinds), "deg" if i < 3 else "m"] for i, n in enumerate(rl.PARAM_NAMES)]
+        cols = ["parameter", *(f"σ ({k})" for k in kinds), "unit"]
+        shaded = f"; the profiles shade the {kinds[0]} σ" if d.profile_costs is not None else ""
+        sec.add(Table(cols, rows, caption=f"σ of the result (from the {' and the '.join(kinds)}{shaded})"))
     return sec

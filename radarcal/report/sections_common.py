@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -11,7 +11,7 @@ from radarcal.errors import InputError
 from radarcal.report import intrinsics as ri
 from radarcal.report.html import Section, Table
 
-__all__ = ["FigureAdder", "str_list", "resolve_file", "read_image_file", "read_cloud_file", "camera_param_table"]
+__all__ = ["FigureAdder", "note_missing_image", "str_list", "resolve_file", "read_image_file", "read_cloud_file", "camera_param_table"]
 
 
 class FigureAdder:
@@ -36,24 +36,39 @@ class FigureAdder:
             self.section.add(f"{label}: could not be drawn ({e}).")
 
 
+def note_missing_image(section: Section, skipped: list[str], figure: str, image_name: str | None) -> None:
+    """A figure drawn over an image has none: say why in the section and in the list of what was skipped."""
+    why = f"{image_name} not found next to the session file or the bundle" if image_name else "the session names no image"
+    skipped.append(f"{section.title}: {figure} drawn without the image ({why})")
+    section.add(f"{figure}: drawn without the image ({why}).")
+
+
 def str_list(a: Any) -> list[str]:
     if a is None:
         return []
     return [str(x) for x in np.asarray(a).ravel()]
 
 
-def resolve_file(name: str, base: Path | None) -> Path | None:
-    """A file named in a session: absolute, relative to the bundle's folder, or relative to the working folder."""
-    p = Path(name)
-    for cand in ([p] if p.is_absolute() else ([base / p] if base is not None else []) + [p]):
-        if cand.is_file():
-            return cand
-    return None
+def _bases(base) -> list[Path]:
+    if base is None:
+        return []
+    if isinstance(base, (str, Path)):
+        return [Path(base)]
+    return [Path(b) for b in base if b is not None]
 
 
-def read_cloud_file(name: str, base: Path | None) -> np.ndarray | None:
-    """The points of a cloud (file or bag) named in a session, or None when it is not there / not readable."""
-    p = resolve_file(name, base) or (Path(name) if Path(name).is_dir() else None)
+def resolve_file(name: str, base: Path | Sequence[Path | None] | None) -> Path | None:
+    """A file named in a session: absolute, else relative to each of ``base`` in order (the session file's folder,
+    then the bundle's), then to the working folder (:func:`radarcal.sessions.resolve_session_path`)."""
+    from radarcal.sessions import resolve_session_path
+
+    b = _bases(base)
+    return resolve_session_path(name, *(b or [None]), Path.cwd())
+
+
+def read_cloud_file(name: str, base: Path | Sequence[Path | None] | None) -> np.ndarray | None:
+    """The points of a cloud (file or bag folder) named in a session, or None when it is not there / not readable."""
+    p = resolve_file(name, base)
     if p is None:
         return None
     try:
@@ -64,10 +79,10 @@ def read_cloud_file(name: str, base: Path | None) -> np.ndarray | None:
         return None
 
 
-def read_image_file(name: str, base: Path | None) -> np.ndarray | None:
-    """An image named in a session (absolute, or relative to the bundle), or None when it is not there."""
+def read_image_file(name: str, base: Path | Sequence[Path | None] | None) -> np.ndarray | None:
+    """An image named in a session (see :func:`resolve_file`), or None when it is not there / not readable."""
     p = resolve_file(name, base)
-    if p is None:
+    if p is None or not p.is_file():
         return None
     try:
         from radarcal.io import read_image

@@ -9,6 +9,8 @@ import time
 
 import numpy as np
 
+from radarcal.teams import team_of, track_colours
+
 if TYPE_CHECKING:
     from radarcal.runtime.pipeline import FrameResult
 
@@ -16,12 +18,14 @@ __all__ = ["Minimap", "StageTimer"]
 
 
 def _colour(key: str, lighter: int = 0) -> tuple[int, int, int]:
-    """BGR: red team, blue team, grey for unlabelled tracks (``#id``) and other labels."""
-    if key.startswith("red"):
-        return (40 + lighter, 40 + lighter, 255)
-    if key.startswith("blue"):
-        return (255, 140 + lighter, 30 + lighter)
-    return (170 + lighter // 2, 170 + lighter // 2, 170 + lighter // 2)
+    """BGR of a track: its team's shade for its robot number (:mod:`radarcal.teams`, the report's table too), grey
+    for unlabelled tracks (``#id``) and other labels; ``lighter`` (0..255) blends it towards white for trails."""
+    if team_of(key) is None:  # the table's greys are for white paper; the minimap is dark
+        return (170 + lighter // 2,) * 3
+    hex_rgb = track_colours([key])[key]
+    r, g, b = (int(hex_rgb[i : i + 2], 16) for i in (1, 3, 5))
+    w = min(max(lighter, 0), 255) / 255.0
+    return tuple(int(round(c + (255 - c) * w)) for c in (b, g, r))
 
 
 class Minimap:

@@ -57,10 +57,13 @@ def bundle_path(tmp_path_factory):
     T_field_cam = make_T(np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]]) @ T_from_xyz_rpy_deg(0, 0, 0, 20, 0, 0)[:3, :3], [-1.0, 7.5, 2.5])
     b.set_transform("cam0", "field", np.linalg.inv(T_field_cam), method="field-pnp")
     b.field_model = {"name": "test", "size": [28.0, 15.0], "landmarks": {"a": [0, 0, 0], "b": [28, 15, 0], "c": [14, 7.5, 0.6], "d": [10, 2, 0]}, "outline": [[0, 0], [28, 0], [28, 15], [0, 15]]}
-    _intrinsics_session(rng).save(b, "intrinsics/cam0")
-    # the layout `radarcal lidar-camera --refine` writes; the image and cloud are named (relative) in meta "pairs"
     import cv2
 
+    for i in range(12):  # the views' images, named by the session (the worst kept view is drawn over its image)
+        cv2.imwrite(str(tmp_path / f"img{i:02d}.png"), np.full((1024, 1280), 60 + 10 * i, np.uint8))
+    cv2.imwrite(str(tmp_path / "field.png"), np.full((1024, 1280, 3), 120, np.uint8))
+    _intrinsics_session(rng).save(b, "intrinsics/cam0")
+    # the layout `radarcal lidar-camera --refine` writes; the image and cloud are named (relative) in meta "pairs"
     from radarcal.io import write_pcd
 
     pts = np.c_[rng.uniform(2, 30, 20000), rng.uniform(-8, 8, 20000), rng.uniform(-2, 4, 20000)]
@@ -80,7 +83,7 @@ def bundle_path(tmp_path_factory):
     picked = np.array([[100.0, 800], [1200, 300], [640, 400], [300, 900]])
     reproj = np.array([[100.5, 800.2], [1199, 300.4], [640.3, 399.5], [300.0, 901.0]])
     FieldPnPSession(names=np.array(["a", "b", "c", "d"]), uv=picked, residuals_px=picked - reproj, grid_x=xg, grid_y=yg, sigma_ground=0.02 * np.hypot(xx + 1, yy - 7.5),
-                    camera="cam0", field="test").save(b, "field_pnp/cam0")  # fmt: skip
+                    camera="cam0", field="test", image=str(tmp_path / "field.png")).save(b, "field_pnp/cam0")  # fmt: skip
     save_bundle(b, b.path)
     tracks = tmp_path / "track.jsonl"
     truth = tmp_path / "truth.jsonl"
@@ -112,11 +115,11 @@ def test_report_cli_writes_every_section(full_report):
     assert s["skipped"] == []
     titles = s["sections"]
     assert titles == ["Bundle overview", "Intrinsics: cam0", "LiDAR-camera: cam0_lidar0", "Field pose: cam0", "Run: tracks"]
-    # intrinsics 7 + lidar-camera 4 + field 3 + run 2
-    assert s["figures"] == 16
+    # intrinsics 7 + the worst kept view over its image + lidar-camera 4 + field 3 + run 2
+    assert s["figures"] == 17
     html = out.read_text()
     pngs = inline_pngs(html)
-    assert len(pngs) == 16
+    assert len(pngs) == 17
     assert "http://" not in html and "https://" not in html and "<script" not in html
     import cv2
 
@@ -221,7 +224,7 @@ def test_report_renders_in_chromium(full_report, tmp_path):
 
     out, _ = full_report
     heights = _display_heights(out.read_text())
-    assert len(heights) == 16
+    assert len(heights) == 17
     img = _screenshot(out, tmp_path / "report.png", (1300, int(sum(heights)) + 2500))  # tall enough for the whole page
     gray = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     assert gray.std() > 20, "the rendered page is blank"

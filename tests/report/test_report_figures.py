@@ -242,3 +242,89 @@ def test_localisation_error_map_and_tracks():
     labels = [ln.get_label() for ln in fig.axes[0].lines]
     assert "median 0.20 m" in labels
     _png_nonblank(fig)
+
+
+# --- issue 17: team colours, visible overlay points, the σ table's title ---------------------------------------------
+def test_team_colours_blue_4_is_blue():
+    from matplotlib.colors import to_rgb
+
+    from radarcal.teams import TEAM_SHADES, team_of, track_colours
+
+    labels = ["red_1", "red_3", "red_4", "blue_1", "blue_3", "blue_4", "B7", "R2", "#12"]
+    col = track_colours(labels)
+    assert team_of("blue_4") == "blue" and team_of("R2") == "red" and team_of("#12") is None
+    for lab in labels:
+        r, g, b = to_rgb(col[lab])
+        if team_of(lab) == "blue":
+            assert col[lab] in TEAM_SHADES["blue"] and b > r + 0.2, lab
+        elif team_of(lab) == "red":
+            assert col[lab] in TEAM_SHADES["red"] and r > b + 0.2, lab
+        else:
+            assert abs(r - b) < 0.05, lab  # grey
+    assert col["blue_4"] == track_colours(["blue_4"])["blue_4"]  # the shade follows the robot, not the other labels
+    assert len({col[k] for k in ("blue_1", "blue_3", "blue_4")}) == 3  # robots of a team stay apart
+
+
+def test_minimap_and_error_figures_use_the_team_colours():
+    from matplotlib.colors import to_hex
+
+    from radarcal.teams import track_colours
+
+    # before: tab10 by sorted order made blue_4 (4th label) tab:red
+    tracks = {k: np.c_[np.linspace(1, 5, 10), np.full(10, i + 1.0)] for i, k in enumerate(["blue_1", "blue_2", "blue_3", "blue_4", "red_1"])}
+    fig = rf.minimap_tracks_figure((28.0, 15.0), tracks)
+    lines = {ln.get_label(): to_hex(ln.get_color()) for ln in fig.axes[0].lines if ln.get_label() in tracks}
+    assert lines == track_colours(tracks)
+    r, g, b = (int(lines["blue_4"][i : i + 2], 16) for i in (1, 3, 5))
+    assert b > r
+    fig = rf.error_over_time_figure({k: np.arange(10.0) for k in tracks}, {k: np.full(10, 0.1) for k in tracks})
+    lines = {ln.get_label(): to_hex(ln.get_color()) for ln in fig.axes[0].lines if ln.get_label() in tracks}
+    assert lines == track_colours(tracks)
+
+
+def test_overlay_points_visible_on_a_large_image():
+    """A 1920x1200 camera: the overlay's dots are at least 2 pt (2.7 px at 96 dpi) across, and each renders to a
+    visible blob of pixels (they were 0.6 pt² = 1 px, invisible at report scale)."""
+    from radarcal.report._common import MIN_POINT_DIAMETER_PT, figure_to_png
+
+    cam = Camera((1920, 1200), [[1400.0, 0, 960], [0, 1400.0, 600], [0, 0, 1]], np.zeros(5))
+    u, v = np.meshgrid(np.linspace(150, 1770, 8), np.linspace(150, 1050, 5))  # 40 dots well apart over the image
+    p_cam = np.c_[(u.ravel() - 960) / 1400 * 10, (v.ravel() - 600) / 1400 * 10, np.full(40, 10.0)]
+
+    def dots(fig):
+        import cv2
+
+        img = cv2.imdecode(np.frombuffer(figure_to_png(fig, dpi=96), np.uint8), cv2.IMREAD_COLOR)
+        hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+        coloured = (hsv[..., 1] > 100) & (hsv[..., 2] > 60)
+        bbox = fig.axes[0].get_window_extent()  # inside the image axes (the colour bar is coloured too)
+        h = img.shape[0]
+        inside = coloured[int(h - bbox.y1) + 2 : int(h - bbox.y0) - 2, int(bbox.x0) + 2 : int(bbox.x1) - 2].astype(np.uint8)
+        n, _, stats, _ = cv2.connectedComponentsWithStats(inside)
+        return stats[1:, cv2.CC_STAT_AREA]
+
+    fig = rl.cloud_overlay_figure(None, cam, p_cam, {"after": np.eye(4)}, depth_range=(9.0, 11.0))
+    assert np.all(np.sqrt(fig.axes[0].collections[0].get_sizes()) >= MIN_POINT_DIAMETER_PT)
+    areas = dots(fig)
+    assert len(areas) == 40 and areas.min() >= 4, areas  # every dot drawn, each at least 2x2 px
+    old = dots(rl.cloud_overlay_figure(None, cam, p_cam, {"after": np.eye(4)}, depth_range=(9.0, 11.0), point_size=0.6))  # the old size
+    assert len(old) < 40 or old.min() < 4  # control: the 1-px dots fail the same check
+
+
+def test_sigma_table_titled_by_what_it_shows():
+    from radarcal.report.html import Table
+    from radarcal.report.lidar_camera_section import lidar_camera_section
+
+    cam = Camera((640, 480), [[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]], np.zeros(5))
+    both = {"edge_rot_deg": [0.05, 0.02, 0.04], "edge_trans_m": [0.003, 0.008, 0.002], "edge_bootstrap_rot_deg": [0.11, 0.07, 0.09], "edge_bootstrap_trans_m": [0.01, 0.02, 0.005]}
+    sec = lidar_camera_section("lidar_camera/cam0_lidar0", cam, {"T_final": np.eye(4)}, {}, transform_sigma=both)
+    t = next(it for it in sec.items if isinstance(it, Table))
+    assert t.columns == ["parameter", "σ (block bootstrap)", "σ (Jacobian)", "unit"]
+    assert "block bootstrap" in t.caption and "Jacobian" in t.caption
+    assert t.rows[0][:3] == ["rx", "0.11", "0.05"] and t.rows[5][:3] == ["tz", "0.005", "0.002"]
+    boot = {k: v for k, v in both.items() if "bootstrap" in k}
+    t = next(it for it in lidar_camera_section("k/c_l", cam, {"T_final": np.eye(4)}, {}, transform_sigma=boot).items if isinstance(it, Table))
+    assert "Jacobian" not in t.caption and "block bootstrap" in t.caption and t.rows[1][1] == "0.07"
+    jac = {k: v for k, v in both.items() if "bootstrap" not in k}
+    t = next(it for it in lidar_camera_section("k/c_l", cam, {"T_final": np.eye(4)}, {}, transform_sigma=jac).items if isinstance(it, Table))
+    assert "bootstrap" not in t.caption and "Jacobian" in t.caption and t.rows[1][1] == "0.02"

@@ -8,7 +8,7 @@ Checks that refuse a result (nothing stored without ``force``): a LiDAR pose who
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +19,7 @@ from radarcal.extrinsics.radar.reflectors import (
     board_reflector_centres,
     extract_reflectors,
 )
+from radarcal.extrinsics.radar_lidar_session import RadarLidarSession  # the typed session file (no solver import)
 from radarcal.extrinsics.radar.rig import (
     RigCalibration,
     SceneObs,
@@ -44,54 +45,6 @@ class RadarLidarOptions:
 
 
 @dataclass
-class RadarLidarSession:
-    """The session file ``radar_lidar`` (for reports): what went in and the per-reflector results, typed."""
-
-    model: str
-    main_lidar: str
-    reference_radar: str
-    T_lidar_G: np.ndarray
-    lidar_centres: dict  # scene -> (K,3) main-LiDAR reflector apexes
-    radar_xy: dict  # scene -> radar -> (M,2) (frame-averaged) detections
-    residual_m: dict  # radar -> (R,) per matched reflector
-    holdout_m: dict  # radar -> (R,)
-    matched_xy: dict  # radar -> (R,2)
-    used: dict  # radar -> (R,) bool
-    filter_counts: dict
-    quantisation: dict
-    notes: list
-    joint: dict
-    detections: dict = field(default_factory=dict)  # scene -> radar -> [label per detection]
-
-    def to_arrays_meta(self) -> tuple[dict, dict]:
-        arrays = {"T_lidar_G": self.T_lidar_G}
-        for s, c in self.lidar_centres.items():
-            arrays[f"scene/{s}/lidar_centres"] = c
-        for s, per in self.radar_xy.items():
-            for r, xy in per.items():
-                arrays[f"scene/{s}/radar/{r}"] = xy
-        for r in self.residual_m:
-            arrays[f"radar/{r}/residual_m"] = self.residual_m[r]
-            arrays[f"radar/{r}/holdout_m"] = self.holdout_m[r]
-            arrays[f"radar/{r}/radar_xy"] = self.matched_xy[r]
-            arrays[f"radar/{r}/used"] = self.used[r]
-        meta = {"model": self.model, "main_lidar": self.main_lidar, "reference_radar": self.reference_radar, "filter_counts": self.filter_counts,
-                "quantisation": self.quantisation, "notes": self.notes, "joint": self.joint, "detections": self.detections}
-        return arrays, meta
-
-    @classmethod
-    def from_arrays_meta(cls, arrays: dict, meta: dict) -> RadarLidarSession:
-        sc = sorted({k.split("/")[1] for k in arrays if k.startswith("scene/")})
-        radars = sorted({k.split("/")[1] for k in arrays if k.startswith("radar/")})
-        return cls(meta["model"], meta["main_lidar"], meta["reference_radar"], arrays["T_lidar_G"],
-                   {s: arrays[f"scene/{s}/lidar_centres"] for s in sc if f"scene/{s}/lidar_centres" in arrays},
-                   {s: {k.split("/")[3]: v for k, v in arrays.items() if k.startswith(f"scene/{s}/radar/")} for s in sc},
-                   {r: arrays[f"radar/{r}/residual_m"] for r in radars}, {r: arrays[f"radar/{r}/holdout_m"] for r in radars},
-                   {r: arrays[f"radar/{r}/radar_xy"] for r in radars}, {r: arrays[f"radar/{r}/used"] for r in radars},
-                   meta["filter_counts"], meta["quantisation"], meta["notes"], meta["joint"], meta.get("detections", {}))
-
-
-@dataclass
 class RadarLidarResult:
     rig: object  # radarcal.io.radar.RigConfig
     cal: RigCalibration | None
@@ -111,13 +64,11 @@ class RadarLidarResult:
     def session_file(self) -> RadarLidarSession:
         cal = self.cal
         rs = cal.radars if cal else {}
-        return RadarLidarSession(self.options.model, self.rig.main_lidar, self.rig.reference_radar, cal.T_lidar_G if cal else np.eye(4),
-                                 {s.name: s.lidar_centres for s in self.scenes}, {s.name: dict(s.radar_xy) for s in self.scenes},
-                                 {r: np.array([p["residual_m"] for p in v.per_reflector]) for r, v in rs.items()},
-                                 {r: np.array([p["holdout_residual_m"] for p in v.per_reflector]) for r, v in rs.items()},
-                                 {r: np.array([p["radar_xy"] for p in v.per_reflector]).reshape(-1, 2) for r, v in rs.items()},
-                                 {r: np.array([p["used"] for p in v.per_reflector], bool) for r, v in rs.items()},
-                                 cal.filter_counts if cal else {}, cal.quantisation if cal else {}, self.notes, cal.joint if cal else {}, self.detection_labels)
+        return RadarLidarSession.build(cal.T_lidar_G if cal else np.eye(4), {s.name: s.lidar_centres for s in self.scenes}, {s.name: dict(s.radar_xy) for s in self.scenes},
+                                       {s.name: dict(s.radar_rcs or {}) for s in self.scenes}, {r: v.per_reflector for r, v in rs.items()},
+                                       model=self.options.model, main_lidar=self.rig.main_lidar, reference_radar=self.rig.reference_radar,
+                                       filter_counts=cal.filter_counts if cal else {}, quantisation=dict(cal.quantisation) if cal else {}, notes=list(self.notes),
+                                       joint=cal.joint if cal else {}, detections=self.detection_labels)
 
     def store(self, bundle_path: Path, command: str, input_files: list) -> None:
         """Write every transform, the sensors and the session file into the bundle (created if missing)."""
@@ -126,7 +77,6 @@ class RadarLidarResult:
             hash_inputs,
             load_or_create_bundle,
             save_bundle,
-            save_session,
         )
 
         o = self.options
@@ -147,10 +97,9 @@ class RadarLidarResult:
             b.set_sensor("vehicle", type="frame")
             b.set_transform("vehicle", main, self.rig.T_vehicle_main, method="given in rig.yaml (T_vehicle_main)", provenance=prov)
         if self.cal is not None:
-            arrays, meta = self.session_file().to_arrays_meta()
             if b.path is None:
                 b.path = Path(bundle_path)
-            save_session(b, "radar_lidar", arrays, meta)
+            self.session_file().save(b, "radar_lidar")
         save_bundle(b, bundle_path)
 
     def summary(self) -> dict:
