@@ -49,6 +49,7 @@ def referee_sim(
     score_wrong: float = typer.Option(None, "--score-wrong", help="Points per second wrong or not sent (default: the season's, -10, UNCERTAIN)."),
     idle_exit: float = typer.Option(3.0, "--idle-exit", help="Stop when radarcal has sent nothing for this long (s)."),
     start_timeout: float = typer.Option(120.0, "--start-timeout", help="Give up when radarcal sends nothing within this long (s)."),
+    speed: float = typer.Option(1.0, "--speed", help="Match clock at this multiple of wall time (give `radarcal run` the same --speed)."),
     as_json: JsonOpt = False,
 ) -> None:
     """Play the referee over a pseudo-terminal: status, HP, mark feedback, DV chances; score radarcal's marks against the truth.
@@ -66,7 +67,7 @@ def referee_sim(
         raise InputError("--season", f"referee season {season} is not one radarcal knows ({KNOWN_SEASONS[0]}..{KNOWN_SEASONS[-1]})")
     if team is not None and team not in ("red", "blue"):
         raise InputError("--team", f"expected red or blue, got {team!r}")
-    for name, v in (("--match-s", match_s), ("--mark-hold", mark_hold), ("--idle-exit", idle_exit), ("--start-timeout", start_timeout)):
+    for name, v in (("--match-s", match_s), ("--mark-hold", mark_hold), ("--idle-exit", idle_exit), ("--start-timeout", start_timeout), ("--speed", speed)):
         if not v > 0:
             raise InputError(name, f"must be > 0, got {v}")
     if mark_radius is not None and not mark_radius > 0:
@@ -111,7 +112,7 @@ def referee_sim(
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        res = serve(sim, link, record, idle_exit_s=idle_exit, start_timeout_s=start_timeout, stop=lambda: stop["now"])
+        res = serve(sim, link, record, idle_exit_s=idle_exit, start_timeout_s=start_timeout, stop=lambda: stop["now"], speed=speed)
     finally:
         for s, h in old.items():
             signal.signal(s, h)

@@ -96,9 +96,12 @@ class ServeResult:
 
 
 def serve(sim: RefereeSim, port, log_path=None, idle_exit_s: float = 3.0, start_timeout_s: float = 120.0, end_margin_s: float = 1.0,
-          poll_s: float = 0.005, clock: Callable[[], float] = time.monotonic, stop: Callable[[], bool] = lambda: False) -> ServeResult:  # fmt: skip
+          poll_s: float = 0.005, clock: Callable[[], float] = time.monotonic, stop: Callable[[], bool] = lambda: False, speed: float = 1.0) -> ServeResult:  # fmt: skip
     """Play the referee on ``port`` until the replay's truth ends (+ ``end_margin_s``), radarcal has been silent for
-    ``idle_exit_s`` after its first frame, no frame came within ``start_timeout_s``, or ``stop()`` is true."""
+    ``idle_exit_s`` after its first frame, no frame came within ``start_timeout_s``, or ``stop()`` is true.
+
+    ``speed``: the match clock runs at this multiple of wall time (radarcal replaying at the same ``--speed``); rates
+    and budgets stay on the wall clock, as the link's own limits do."""
     parser = rp.FrameParser()
     log = open(log_path, "w", encoding="utf-8") if log_path else None
     t0_wall = clock()
@@ -106,11 +109,11 @@ def serve(sim: RefereeSim, port, log_path=None, idle_exit_s: float = 3.0, start_
     last_rx = None
     seq = 0
     stopped_by = "end of truth"
-    end_t = sim.truth.duration + end_margin_s
+    end_t = sim.truth.duration + end_margin_s * speed
     bad_before = 0
 
     def match_t(now: float) -> float:
-        return 0.0 if first_rx is None else now - first_rx
+        return 0.0 if first_rx is None else (now - first_rx) * speed
 
     def record(d: dict) -> None:
         if log is not None:

@@ -197,3 +197,38 @@ def test_referee_frames_parse_with_radarcals_parsers():
         assert (rp.CMD_RADAR_MARK in frames) == (season >= 2024)
         assert not sim.due_frames(0.05)  # nothing due again within 50 ms
         assert [c for c, _ in sim.due_frames(0.1)] == [rp.CMD_ROBOT_STATUS]
+
+
+class _ScriptedPort:
+    """A byte port that delivers one 2026 minimap frame every 4th read (radarcal marking blue_1 right)."""
+
+    def __init__(self):
+        self.reads = 0
+        self.written = []
+        self.dropped_writes = 0
+        self.frame = rp.pack_frame(rp.CMD_MAP, rp.map_payload(2026, {1: (10.0, 7.0)}, {}, "blue")[0])
+
+    def read(self):
+        self.reads += 1
+        return self.frame if self.reads % 4 == 1 else b""  # every 0.2 s of the test clock: 5 Hz
+
+    def write(self, data):
+        self.written.append(rp.parse_frame(data))
+
+
+@pytest.mark.parametrize("speed", [1.0, 0.5])
+def test_serve_maps_wall_time_to_the_match_clock(speed, tmp_path):
+    from radarcal.synth.referee_serve import serve
+
+    truth = static_truth({"blue_1": (10.0, 7.0)}, duration=2.0)
+    sim = RefereeSim(rules(2026), truth)
+    ticks = iter(np.arange(0, 100, 0.05))
+    port = _ScriptedPort()
+    res = serve(sim, port, tmp_path / "log.jsonl", end_margin_s=0.0, poll_s=0.0, clock=lambda: float(next(ticks)), speed=speed)
+    s = res.summary
+    assert res.started and res.stopped_by == "end of truth"
+    assert s["match_s"] == pytest.approx(2.0) and s["robots"][0]["correct_s"] == pytest.approx(2.0, abs=0.11)
+    assert res.wall_s == pytest.approx(2.0 / speed, abs=0.11)  # the match took 2 / speed wall seconds
+    status = [f for f in port.written if f.cmd_id == rp.CMD_GAME_STATUS]  # 1 Hz on the wall clock
+    assert len(status) == pytest.approx(2.0 / speed + 1, abs=1)
+    assert s["link"]["malformed_total"] == 0 and s["link"]["over_rate"] == 0
