@@ -241,9 +241,9 @@ class LidarFirst:
         tracks (field xy at ``t``) nearer than that are one robot seen twice — a box whose depth is another robot's
         cluster, a box-only track on a LiDAR track's robot, or a second track on one robot's points. Ranked: seen by
         the LiDAR now, then by a box now, then coasting; a labelled track before an unlabelled one; then the fresher
-        last measurement, the smaller sigma. The strongest keeps its source; an unlabelled weaker one is not
-        reported; a labelled weaker one is reported as ``predicted`` (:meth:`seen_source`: not a measurement, off the
-        referee map), so its name hypothesis stays visible until the two part. Nothing is deleted from the tracker.
+        last measurement, the smaller sigma. The strongest keeps its source; the weaker ones are reported as
+        ``predicted`` (:meth:`seen_source`: not a measurement, off the referee map), so their hypotheses (a name, or
+        a split cluster's track) stay visible until the two part. Nothing is deleted from the tracker.
         Ground and aerial tracks are separate layers."""
         r = self.cfg.exclusion_m
         if r <= 0 or len(tracks) < 2:
@@ -251,16 +251,12 @@ class LidarFirst:
         rank = {"lidar": 2, "depth": 1, "ground": 1, "predicted": 0}
         order = sorted(tracks, key=lambda tr: (-rank[self.seen_source(tr, t)], tr.label is None, -tr.t_seen, tr.sigma, tr.id))
         kept: list[Track3D] = []
-        out: set[int] = set()
         for tr in order:
             if any(o.aerial == tr.aerial and float(np.linalg.norm(o.x[:2] - tr.x[:2])) < r for o in kept):
-                if tr.label is None:
-                    out.add(tr.id)
-                else:
-                    tr.outranked_t = t
+                tr.outranked_t = t
             else:
                 kept.append(tr)
-        return [tr for tr in tracks if tr.id not in out]
+        return tracks
 
     def seen_source(self, tr: Track3D, t: float) -> str:
         """``lidar`` / ``depth`` / ``ground`` when this frame has evidence for the track, else ``predicted`` (also

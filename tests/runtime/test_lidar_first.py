@@ -188,9 +188,9 @@ def test_one_measured_entry_per_robot():
     b3, b2, split = track(truth["blue_3"], "blue_3", "lidar"), track((10.3, 5.05), "blue_2", "depth"), track((10.1, 5.2), None, "lidar")
     r1, air = track(truth["red_1"], "red_1", "lidar"), track((10.0, 5.0), "red_6", "lidar", aerial=True)
     out = lf.one_per_robot(list(tk.tracks), t)
-    assert {tr.id for tr in out} == {b3.id, b2.id, r1.id, air.id}  # the split cluster is not reported
-    src = {tr.label: lf.seen_source(tr, t) for tr in out}
-    assert src == {"blue_3": "lidar", "blue_2": "predicted", "red_1": "lidar", "red_6": "lidar"}
+    assert [tr.id for tr in out] == [tr.id for tr in tk.tracks]  # nothing dropped: the weaker ones are flagged
+    src = {tr.id: lf.seen_source(tr, t) for tr in out}
+    assert src == {b3.id: "lidar", b2.id: "predicted", split.id: "predicted", r1.id: "lidar", air.id: "lidar"}
     measured = [tr for tr in out if lf.seen_source(tr, t) != "predicted" and not tr.aerial]
     for lab, p in truth.items():  # every measured ground entry is on its own robot, at most one per robot
         near = [tr for tr in measured if np.linalg.norm(tr.x[:2] - p) < 0.3]
