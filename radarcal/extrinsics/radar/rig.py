@@ -465,25 +465,43 @@ def _fit_kw(slant: bool, known_h, h_guess) -> dict:
 
 
 def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate, z_nominal, in_region):
-    """All radar poses at once. Observations: every radar's matched LiDAR reflectors (kept ones), plus detections of
-    reflectors that two or more radars see but the LiDAR does not (free 2D points at the median reflector height). Long (~115 lines): the parameter packing, the residual function over
-    all radars and free points, and the unpacking share one layout; split, the layout would be restated in each piece."""
+    """All radar poses at once. Observations: every radar's matched LiDAR reflectors (kept ones, ``keepinfo``: radar
+    -> :class:`_Matched`), plus detections of reflectors that two or more radars see but the LiDAR does not (free 2D
+    points at the median reflector height). Returns the new poses T_G_radar, heights and a summary."""
     names = list(fits)
-    # free points: per scene, cluster unmatched detections (in G under current poses) seen by >= 2 radars
-    free_obs = []  # (radar index, free point index, measurement)
+    free_init, free_obs = _free_points(scenes, names, pose_G, heights, keepinfo, slant, gate, z_nominal, in_region)
+    prob = _JointProblem.build(names, pose_G, heights, keepinfo, free_init, slant, z_nominal)
+    all_obs = _FreeObs(np.array([o[0] for o in free_obs], int), np.array([o[1] for o in free_obs], int), np.array([o[2] for o in free_obs]).reshape(-1, 2))
+    x, obs, dropped = _solve_dropping_outliers(prob, all_obs)
+    free_init = [f for i, f in enumerate(free_init) if i not in dropped]
+    P, H, F = prob.unpack(x)
+    new_pose = {r: Pose2(float(_wrap(P[k, 0])), P[k, 1:].copy()) for k, r in enumerate(names)}
+    new_h = {r: (float(H[k]) if (slant or heights[r] is not None) else None) for k, r in enumerate(names)}
+    for r in heights:
+        if r not in new_h:
+            new_h[r] = heights[r]
+    rr = prob.resid(x, obs)
+    return new_pose, new_h, {"enabled": True, "free_points": len(free_init), "free_points_dropped": len(dropped), "n_obs": int(len(rr) // 2), "rms": float(np.sqrt(np.mean(rr.reshape(-1, 2) ** 2) * 2)) if len(rr) else 0.0}
+
+
+def _free_points(scenes, names, pose_G, heights, keepinfo, slant, gate, z_nominal, in_region) -> tuple[list, list]:
+    """Radar-only reflectors: per scene, the detections no LiDAR match used (strong enough, inside ``in_region``,
+    in G under the current poses) clustered across radars; a cluster seen by >= 2 radars, once each, is a free point.
+    Returns the free points' starting xy in G and the observations (radar index, free point index, measurement)."""
+    free_obs = []
     free_init = []
-    for si, sc in enumerate(scenes):
+    for sc in scenes:
         pts, rid, mids = [], [], []
         for k, r in enumerate(names):
             m = np.asarray(sc.radar_xy.get(r, np.zeros((0, 2))), float).reshape(-1, 2)
             if len(m) == 0:
                 continue
-            used = {j for (scn, i, j), kp in zip(keepinfo[r][3], keepinfo[r][4]) if scn == sc.name}
+            used = {j for (scn, i, j), kp in zip(keepinfo[r].info, keepinfo[r].keep) if scn == sc.name}
             un = np.array([j for j in range(len(m)) if j not in used], int)
             rc = (sc.radar_rcs or {}).get(r)
-            if rc is not None and len(un) and np.isfinite(keepinfo[r][8]).any():
+            if rc is not None and len(un) and np.isfinite(keepinfo[r].rcs).any():
                 # weak echoes (clutter, multipath) are not radar-only reflectors
-                un = un[np.asarray(rc, float)[un] >= np.nanpercentile(keepinfo[r][8], 10) - 6.0]
+                un = un[np.asarray(rc, float)[un] >= np.nanpercentile(keepinfo[r].rcs, 10) - 6.0]
             if len(un) == 0:
                 continue
             h = heights[r] if heights[r] is not None else 0.0
@@ -508,80 +526,105 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
             free_init.append(fr.cluster_means[c])
             for mi in members:
                 free_obs.append((int(allr[mi]), fid, allm[mi]))
-    est_h = [slant and heights[r] is None for r in names]
-    nr = len(names)
-    x0 = np.concatenate([np.concatenate([pose_G[r].as_array() for r in names]), np.array([heights[r] or 0.0 for r in names]), np.array(free_init).ravel()])
-    anchored = []
-    for k, r in enumerate(names):
-        s_, d_, z_, _info, keep, _rej, _kw, w_, _ = keepinfo[r]
-        anchored.append((k, s_[keep], d_[keep], z_[keep], np.sqrt(w_[keep])[:, None]))
-    fo_r = np.array([o[0] for o in free_obs], int)
-    fo_f = np.array([o[1] for o in free_obs], int)
-    fo_m = np.array([o[2] for o in free_obs]).reshape(-1, 2)
-    fixed_h = np.array([heights[r] if heights[r] is not None else 0.0 for r in names])
+    return free_init, free_obs
 
-    def unpack(x):
+
+class _FreeObs(NamedTuple):
+    """Radar detections of free points: radar index (N,), free point index (N,), measurement xy (N,2) radar frame."""
+
+    radar: np.ndarray
+    point: np.ndarray
+    xy: np.ndarray
+
+
+@dataclass
+class _JointProblem:
+    """Parameter layout of the joint refinement: x = [nr x (theta, a, b) T_G_radar | nr heights | free points xy in G];
+    heights of radars with a known one stay fixed."""
+
+    nr: int
+    slant: bool
+    z_nominal: float
+    est_h: list  # per radar: height estimated
+    fixed_h: np.ndarray  # per radar: known height (0 when estimated)
+    anchored: list  # per radar: (index, src xy G, dst radar xy, src z, sqrt weight (N,1)) of its kept LiDAR matches
+    x0: np.ndarray
+
+    @classmethod
+    def build(cls, names, pose_G, heights, keepinfo, free_init, slant, z_nominal) -> _JointProblem:
+        est_h = [slant and heights[r] is None for r in names]
+        x0 = np.concatenate([np.concatenate([pose_G[r].as_array() for r in names]), np.array([heights[r] or 0.0 for r in names]), np.array(free_init).ravel()])
+        anchored = []
+        for k, r in enumerate(names):
+            s_, d_, z_, _info, keep, _rej, _kw, w_, _ = keepinfo[r]
+            anchored.append((k, s_[keep], d_[keep], z_[keep], np.sqrt(w_[keep])[:, None]))
+        fixed_h = np.array([heights[r] if heights[r] is not None else 0.0 for r in names])
+        return cls(len(names), slant, z_nominal, est_h, fixed_h, anchored, x0)
+
+    def unpack(self, x):
+        nr = self.nr
         P = x[:3 * nr].reshape(nr, 3)
-        H = np.where(est_h, x[3 * nr:4 * nr], fixed_h)
+        H = np.where(self.est_h, x[3 * nr:4 * nr], self.fixed_h)
         F = x[4 * nr:].reshape(-1, 2)
         return P, H, F
 
-    def pred_radar(P, H, k, pg_xy, pz):
+    def pred_radar(self, P, H, k, pg_xy, pz):
+        """Radar ``k``'s predicted measurement of points ``pg_xy`` (G) at heights ``pz``."""
         inv = Pose2(P[k, 0], P[k, 1:]).inverse()
         q = inv.apply(pg_xy)
-        return slant_predict(q, pz - H[k]) if slant else q
+        return slant_predict(q, pz - H[k]) if self.slant else q
 
-    def resid(x):
-        P, H, F = unpack(x)
+    def free_errors(self, P, H, F, obs: _FreeObs, k: int) -> np.ndarray:
+        """(n,2) residuals of radar ``k``'s free-point observations (``obs.radar == k``)."""
+        sel = obs.radar == k
+        return self.pred_radar(P, H, k, F[obs.point[sel]], np.full(sel.sum(), self.z_nominal)) - obs.xy[sel]
+
+    def resid(self, x, obs: _FreeObs) -> np.ndarray:
+        P, H, F = self.unpack(x)
         out = []
-        for k, s_, d_, z_, sw in anchored:  # loop over radars
-            out.append(((pred_radar(P, H, k, s_, z_) - d_) * sw).ravel())
-        for k in range(nr):
-            sel = fo_r == k
-            if sel.any():
-                out.append((pred_radar(P, H, k, F[fo_f[sel]], np.full(sel.sum(), z_nominal)) - fo_m[sel]).ravel())
+        for k, s_, d_, z_, sw in self.anchored:  # loop over radars
+            out.append(((self.pred_radar(P, H, k, s_, z_) - d_) * sw).ravel())
+        for k in range(self.nr):
+            if (obs.radar == k).any():
+                out.append(self.free_errors(P, H, F, obs, k).ravel())
         return np.concatenate(out)
 
-    free_mask = np.ones(len(x0), bool)
-    free_mask[3 * nr:4 * nr] = est_h
-    all_r, all_f, all_m = fo_r, fo_f, fo_m
+
+def _solve_dropping_outliers(prob: _JointProblem, all_obs: _FreeObs):
+    """Solve; drop radar-only points that do not fit (beyond 4x the anchored RMS: multipath, clutter seen twice);
+    again (up to four solves). Returns the solution x, the observations it used and the dropped free points."""
+    nr = prob.nr
+    free_mask = np.ones(len(prob.x0), bool)
+    free_mask[3 * nr:4 * nr] = prob.est_h
     dropped: set = set()
-    for _round in range(4):  # solve; drop radar-only points that do not fit (multipath, clutter seen twice); again
-        live = np.array([f not in dropped for f in all_f], bool)
-        fo_r, fo_f, fo_m = all_r[live], all_f[live], all_m[live]
+    for _round in range(4):
+        live = np.array([f not in dropped for f in all_obs.point], bool)
+        obs = _FreeObs(all_obs.radar[live], all_obs.point[live], all_obs.xy[live])
         mask = free_mask.copy()
         for f in dropped:
             mask[4 * nr + 2 * f:4 * nr + 2 * f + 2] = False
 
-        def resid_free(xf, mask=mask):
-            x = x0.copy()
+        def resid_free(xf, mask=mask, obs=obs):
+            x = prob.x0.copy()
             x[mask] = xf
-            return resid(x)
+            return prob.resid(x, obs)
 
-        sol = least_squares(resid_free, x0[mask], method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
-        x = x0.copy()
+        sol = least_squares(resid_free, prob.x0[mask], method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
+        x = prob.x0.copy()
         x[mask] = sol.x
-        P, H, F = unpack(x)
-        anch = np.concatenate([((pred_radar(P, H, k, s_, z_) - d_) * sw).ravel() for k, s_, d_, z_, sw in anchored]) if anchored else np.zeros(0)
+        P, H, F = prob.unpack(x)
+        anch = np.concatenate([((prob.pred_radar(P, H, k, s_, z_) - d_) * sw).ravel() for k, s_, d_, z_, sw in prob.anchored]) if prob.anchored else np.zeros(0)
         scale = max(float(np.sqrt(np.mean(anch**2) * 2)) if len(anch) else 0.0, 0.01)
         bad = set()
         for k in range(nr):
-            sel = fo_r == k
+            sel = obs.radar == k
             if sel.any():
-                e = np.linalg.norm(pred_radar(P, H, k, F[fo_f[sel]], np.full(sel.sum(), z_nominal)) - fo_m[sel], axis=1)
-                bad |= {int(f) for f, ei in zip(fo_f[sel], e) if ei > 4 * scale}
+                e = np.linalg.norm(prob.free_errors(P, H, F, obs, k), axis=1)
+                bad |= {int(f) for f, ei in zip(obs.point[sel], e) if ei > 4 * scale}
         if not bad:
             break
         dropped |= bad
-    free_init = [f for i, f in enumerate(free_init) if i not in dropped]
-    P, H, F = unpack(x)
-    new_pose = {r: Pose2(float(_wrap(P[k, 0])), P[k, 1:].copy()) for k, r in enumerate(names)}
-    new_h = {r: (float(H[k]) if (slant or heights[r] is not None) else None) for k, r in enumerate(names)}
-    for r in heights:
-        if r not in new_h:
-            new_h[r] = heights[r]
-    rr = resid(x)
-    return new_pose, new_h, {"enabled": True, "free_points": len(free_init), "free_points_dropped": len(dropped), "n_obs": int(len(rr) // 2), "rms": float(np.sqrt(np.mean(rr.reshape(-1, 2) ** 2) * 2)) if len(rr) else 0.0}
+    return x, obs, dropped
 
 
 def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_gate: float = 4.0, ground_tol: float = 0.05, cluster_tol: float = 0.12,
