@@ -181,8 +181,8 @@ def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.nd
     residual variances (plane residuals at their robust RMS but at least ``plane_sigma_floor``: neighbouring
     correspondences are not independent and two samplings of a surface differ by more than the range noise;
     reflectors at ``reflector_sigma`` or their RMS if larger), from which the worst-observed rotation axis and translation direction are reported.
-    Long (~100 lines): the iterations (correspondences, reflector pairs re-matched under the current estimate,
-    weights, the update) and the covariance after them use the same residual blocks and weights."""
+    Each Gauss-Newton pass: :func:`_plane_information`, :func:`_reflector_pairs`, :func:`_add_reflector_information`,
+    :func:`_step`."""
     from scipy.spatial import cKDTree
 
     src = _voxel_first(np.asarray(source, float).reshape(-1, 3), voxel)
