@@ -81,12 +81,9 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
     sensor health to the status line; ``write_latency=False`` leaves the wall-clock latencies out of the JSON lines
     (replays of a recording: byte-identical output); ``marking`` (:class:`radarcal.runtime.marking.Marking`) decides
     what goes on the link (roster, guesses, bandwidth, double vulnerability). Returns a summary."""
-    import cv2
-
     timer = StageTimer()
     out_f = open(out_path, "w", encoding="utf-8") if out_path else None
-    mm = Minimap(pipeline.field_model) if minimap_path else None
-    writer = None
+    mm = _MinimapOutput(pipeline.field_model, minimap_path) if minimap_path else None
     last_status = 0.0
     results = [] if keep_results else None
     n = 0
@@ -124,18 +121,7 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             if out_f:
                 out_f.write(json.dumps(d if write_latency else {k: v for k, v in d.items() if k != "latency_ms"}, separators=(",", ":")) + "\n")
             if mm is not None:
-                if minimap_path.suffix.lower() in (".mp4", ".avi", ".mkv"):
-                    img = mm.draw(res)
-                    if writer is None:
-                        fourcc = cv2.VideoWriter_fourcc(*("mp4v" if minimap_path.suffix.lower() == ".mp4" else "MJPG"))
-                        writer = cv2.VideoWriter(str(minimap_path), fourcc, 30.0, (img.shape[1], img.shape[0]))
-                    writer.write(img)
-                else:
-                    for r in res.robots:
-                        hist = mm.history.setdefault(r.key, [])
-                        hist.append((res.t, float(r.p_field[0]), float(r.p_field[1])))
-                        if len(hist) > 3000:  # whole-run trails for the PNG, bounded: thin the older half
-                            hist[:2000] = hist[:2000:2]
+                mm.add(res)
             if link is not None:
                 msgs = marking.messages(res, team, link.state) if marking is not None else pipeline.referee_messages(res, team)
                 for cmd, data, key in msgs:
@@ -155,23 +141,7 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             last_missing = res.missing
             if status and (now - last_status > (0.5 if tty else 5.0) or missing_changed):
                 last_status = now
-                rec = timer.recent()
-                stages = " ".join(f"{k} {rec.get(k, 0):.1f}" for k in STAGES)
-                sub = " ".join(f"{k[7:]} {v:.1f}" for k, v in rec.items() if k.startswith("detect_"))
-                if sub:
-                    stages = stages.replace(f"detect {rec.get('detect', 0):.1f}", f"detect {rec.get('detect', 0):.1f} ({sub})", 1)
-                srcs = {}
-                for r in res.robots:
-                    srcs[r.source] = srcs.get(r.source, 0) + 1
-                ser = ""
-                if link is not None:
-                    s = link.snapshot()
-                    ser = f" | serial {'ok' if s['connected'] else 'DOWN'} tx {s['sent']} rx {s['received']}" + (marking.status_text() if marking is not None else "")
-                line = f"frame {n:6d} t={res.t:8.2f}s | {timer.fps():5.1f} FPS | ms: {stages} | robots {len(res.robots)} {srcs}{ser}"
-                if status_extra is not None:
-                    line += status_extra()
-                if getattr(pipeline, "drift", None) is not None:
-                    line += pipeline.drift.status_text()
+                line = _status_line(n, res, timer, pipeline, link, marking, status_extra)
                 sys.stderr.write(("\r" + line + "\x1b[K") if tty else line + "\n")
                 sys.stderr.flush()
             if max_frames is not None and n >= max_frames:
@@ -182,16 +152,77 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             pipeline.drift.finish()  # the last check belongs in the summary
         if out_f:
             out_f.close()
-        if writer is not None:
-            writer.release()
+        if mm is not None:
+            mm.close()
         if status and tty:
             sys.stderr.write("\n")
-    if mm is not None and last is not None and minimap_path.suffix.lower() not in (".mp4", ".avi", ".mkv"):
-        img = mm.draw(FrameResult(last.t, last.frame, last.robots, None, None, {}), full_trails=True)
-        if not cv2.imwrite(str(minimap_path), img):
-            raise InputError(minimap_path, "cannot write minimap image")
+    if mm is not None and last is not None:
+        mm.write_png(last)
     wall = time.perf_counter() - t_start
     return {"frames": n, "wall_s": wall, "fps": n / wall if wall > 0 else 0.0, "latency_ms": timer.summary(), "robot_frames": located,
             "clouds": pipeline.clouds_in, "bad_frames": bad_frames, "results": results,
             **({"drift": pipeline.drift.summary()} if getattr(pipeline, "drift", None) is not None else {}),
             **({"marking": marking.summary()} if marking is not None else {})}  # fmt: skip
+
+
+_VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv")
+
+
+class _MinimapOutput:
+    """``--minimap``: a video (.mp4/.avi/.mkv, one image per frame at 30 fps) or a PNG of the last frame with the whole
+    run's trails (kept bounded: the older half thinned past 3000 points per robot)."""
+
+    def __init__(self, field_model, path: Path):
+        self.path, self.map, self.writer = Path(path), Minimap(field_model), None
+        self.video = self.path.suffix.lower() in _VIDEO_SUFFIXES
+
+    def add(self, res: FrameResult) -> None:
+        import cv2
+
+        if self.video:
+            img = self.map.draw(res)
+            if self.writer is None:
+                fourcc = cv2.VideoWriter_fourcc(*("mp4v" if self.path.suffix.lower() == ".mp4" else "MJPG"))
+                self.writer = cv2.VideoWriter(str(self.path), fourcc, 30.0, (img.shape[1], img.shape[0]))
+            self.writer.write(img)
+            return
+        for r in res.robots:
+            hist = self.map.history.setdefault(r.key, [])
+            hist.append((res.t, float(r.p_field[0]), float(r.p_field[1])))
+            if len(hist) > 3000:
+                hist[:2000] = hist[:2000:2]
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.release()
+
+    def write_png(self, last: FrameResult) -> None:
+        import cv2
+
+        if self.video:
+            return
+        img = self.map.draw(FrameResult(last.t, last.frame, last.robots, None, None, {}), full_trails=True)
+        if not cv2.imwrite(str(self.path), img):
+            raise InputError(self.path, "cannot write minimap image")
+
+
+def _status_line(n: int, res: FrameResult, timer: StageTimer, pipeline, link, marking, status_extra) -> str:
+    """The operator's status line: frame, FPS, per-stage ms (detector sub-stages), robots by source, link, health."""
+    rec = timer.recent()
+    stages = " ".join(f"{k} {rec.get(k, 0):.1f}" for k in STAGES)
+    sub = " ".join(f"{k[7:]} {v:.1f}" for k, v in rec.items() if k.startswith("detect_"))
+    if sub:
+        stages = stages.replace(f"detect {rec.get('detect', 0):.1f}", f"detect {rec.get('detect', 0):.1f} ({sub})", 1)
+    srcs: dict[str, int] = {}
+    for r in res.robots:
+        srcs[r.source] = srcs.get(r.source, 0) + 1
+    ser = ""
+    if link is not None:
+        s = link.snapshot()
+        ser = f" | serial {'ok' if s['connected'] else 'DOWN'} tx {s['sent']} rx {s['received']}" + (marking.status_text() if marking is not None else "")
+    line = f"frame {n:6d} t={res.t:8.2f}s | {timer.fps():5.1f} FPS | ms: {stages} | robots {len(res.robots)} {srcs}{ser}"
+    if status_extra is not None:
+        line += status_extra()
+    if getattr(pipeline, "drift", None) is not None:
+        line += pipeline.drift.status_text()
+    return line
