@@ -317,76 +317,98 @@ def refine_dense(scenes: list[DenseScene], T_init: np.ndarray, options: DenseOpt
     hist: list = []
     T = T0.copy()
     if o.coarse_search_deg > 0:
-        edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
-        sub = []
-        for e in edges:
-            k = rng.choice(len(e.points), min(len(e.points), 3000), replace=False)
-            sub.append(DenseEdgePoints(e.points[k], e.helpers[k], e.weights[k], e.kind[k]))
-        g = np.radians(np.arange(-o.coarse_search_deg, o.coarse_search_deg + 1e-9, o.coarse_step_deg))
-        offs = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T
-        vals = np.array([_total(scenes, sub, _apply(np.r_[v, 0, 0, 0], T), o.sigmas_px[0]) for v in offs])
-        best = offs[int(np.argmax(vals))]
-        T = _apply(np.r_[best, 0, 0, 0], T)
-        hist.append({"stage": "grid", "score": float(vals.max()), "offset_deg": np.degrees(best).tolist()})
+        T = _rotation_grid(scenes, T, o, rng, hist)
     offset = [np.zeros(2)]
     T = _stages(scenes, T, o, o.sigmas_px, rng, hist, T0, offset)
     spread, n_worse = (0.0, 0.0), 0
     if o.stability_checks > 0:
-        srng = np.random.default_rng(12345)
-        for rnd in range(3):
-            edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
-            s_T = _total(scenes, edges, T, o.sigmas_px[-1], tuple(offset[0]))
-            ends = []
-            for _ in range(o.stability_checks):
-                Tk = geometry.perturb_T(T, o.stability_deg, 0.0 if o.fix_translation else o.stability_m, srng)
-                ends.append(_stages(scenes, Tk, o, o.stability_sigmas_px, rng, hist, T0, [offset[0].copy()]))
-            sk = [_total(scenes, edges, Te, o.sigmas_px[-1], tuple(offset[0])) for Te in ends]
-            dev = [geometry.pose_error(Te, T) for Te in ends]
-            hist.append({"stage": "stability", "round": rnd, "score_result": s_T, "scores": sk, "dev": dev})
-            k = int(np.argmax(sk))
-            if sk[k] > s_T * (1 + o.adopt_margin):
-                T = ends[k]
-                continue
-            # restarts ending in a clearly worse minimum say nothing about this one; those about as good must be it
-            near = [d for d, v in zip(dev, sk) if v >= s_T * (1 - o.ambiguity_margin)]
-            n_worse = len(dev) - len(near)
-            spread = (max(d[0] for d in near), max(d[1] for d in near)) if near else (float("nan"), float("nan"))
-            break
-        else:
-            spread = (float("inf"), float("inf"))
+        T, spread, n_worse = _stability_restarts(scenes, T, o, rng, hist, T0, offset)
     edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
     s_init, s_end = _total(scenes, edges, T0, o.sigmas_px[-1]), _total(scenes, edges, T, o.sigmas_px[-1], tuple(offset[0]))
-    # observability of the translation: relative score drop +-observe_m along the three weakest directions (sideways /
-    # vertical shift with the yaw / pitch that keeps the median edge depth in place, and the optical axis)
-    drops = {}
-    if o.observe_m > 0 and not o.fix_translation:
-        z = np.concatenate([(e.points @ T[:3, :3].T + T[:3, 3])[:, 2] for e in edges]) if edges else np.zeros(0)
-        Z = float(np.median(z[z > 0.3])) if np.any(z > 0.3) else 10.0
-        V = {"x (with yaw)": np.array([0.0, -1.0 / Z, 0.0, 1.0, 0.0, 0.0]), "y (with pitch)": np.array([1.0 / Z, 0.0, 0.0, 0.0, 1.0, 0.0]),
-             "z": np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])}
-        for name, v in V.items():
-            sc_pm = [_total(scenes, edges, _apply(sg * o.observe_m * v, T), o.sigmas_px[-2] if len(o.sigmas_px) > 1 else o.sigmas_px[-1], tuple(offset[0])) for sg in (-1.0, 1.0)]
-            s_mid = _total(scenes, edges, T, o.sigmas_px[-2] if len(o.sigmas_px) > 1 else o.sigmas_px[-1], tuple(offset[0]))
-            drops[name] = float(1.0 - max(sc_pm) / max(s_mid, 1e-12))
-        hist.append({"stage": "observability", "median_depth_m": Z, "drops": drops})
-    weak = [k for k, d in drops.items() if d < o.observe_min_drop]
+    drops = _translation_drops(scenes, edges, T, o, offset, hist) if o.observe_m > 0 and not o.fix_translation else {}
     n_pts = int(sum(len(e.points) for e in edges))
-    moved = geometry.pose_error(T, T0)
-    if n_pts < o.min_edge_points:
-        ok, msg = False, f"did not converge: only {n_pts} LiDAR edge points in view (< {o.min_edge_points})"
-    elif np.isnan(spread[0]):
-        ok, msg = False, f"did not converge: none of the {o.stability_checks} restarts {o.stability_deg:g} deg / {o.stability_m * 100:g} cm away came back (all ended in worse minima) - the basin is very narrow"
-    elif not np.isfinite(spread[0]):
-        ok, msg = False, "did not converge: restarts from the result kept finding higher scores"
-    elif spread[0] > o.stability_tol_deg or spread[1] > o.stability_tol_m:
-        ok, msg = False, (f"did not converge: restarts {o.stability_deg:g} deg / {o.stability_m * 100:g} cm away end up to {spread[0]:.3f} deg / "
-                          f"{spread[1] * 100:.1f} cm from the result (tolerance {o.stability_tol_deg:g} deg / {o.stability_tol_m * 100:g} cm) - the optimum is not pinned down that well")
-    elif weak:
-        ok, msg = False, ("did not converge: the translation is not observed to " + f"{o.observe_m * 100:g} cm along " + ", ".join(weak) + " (the score drops by only "
-                          + ", ".join(f"{100 * drops[k]:.2f} %" for k in weak) + f" at +-{o.observe_m * 100:g} cm, < {100 * o.observe_min_drop:g} %) - add near structure or scenes, or measure the translation")
-    elif s_end < s_init:
-        ok, msg = False, f"did not converge: the dense score got worse ({s_init:.4f} -> {s_end:.4f})"
-    else:
-        worse = f" ({n_worse} of {o.stability_checks} ended in a clearly worse minimum)" if n_worse else ""
-        ok, msg = True, f"converged: dense score {s_init:.4f} -> {s_end:.4f}, moved {moved[0]:.3f} deg / {moved[1] * 100:.1f} cm, restarts within {spread[0]:.3f} deg / {spread[1] * 100:.1f} cm{worse}"
+    ok, msg = _dense_verdict(o, n_pts, spread, n_worse, drops, s_init, s_end, geometry.pose_error(T, T0))
     return DenseResult(T, T0, bool(ok), msg, s_init, s_end, n_pts, float(spread[0]), float(spread[1]), hist, tuple(map(float, offset[0])), drops)
+
+
+def _rotation_grid(scenes, T, o: DenseOptions, rng, hist) -> np.ndarray:
+    """Best rotation offset (applied on the left) on a +-``coarse_search_deg`` grid at the coarsest sigma, scored on
+    up to 3000 edge points per scene."""
+    edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
+    sub = []
+    for e in edges:
+        k = rng.choice(len(e.points), min(len(e.points), 3000), replace=False)
+        sub.append(DenseEdgePoints(e.points[k], e.helpers[k], e.weights[k], e.kind[k]))
+    g = np.radians(np.arange(-o.coarse_search_deg, o.coarse_search_deg + 1e-9, o.coarse_step_deg))
+    offs = np.array(np.meshgrid(g, g, g, indexing="ij")).reshape(3, -1).T
+    vals = np.array([_total(scenes, sub, _apply(np.r_[v, 0, 0, 0], T), o.sigmas_px[0]) for v in offs])
+    best = offs[int(np.argmax(vals))]
+    hist.append({"stage": "grid", "score": float(vals.max()), "offset_deg": np.degrees(best).tolist()})
+    return _apply(np.r_[best, 0, 0, 0], T)
+
+
+def _stability_restarts(scenes, T, o: DenseOptions, rng, hist, T0, offset):
+    """Restarts from the result moved by ``stability_deg`` / ``stability_m``: a clearly higher end is adopted and the
+    check repeated (three rounds at most); otherwise the spread (deg, m) of the ends about as good as the result
+    (NaN when none; inf when every round adopted) and how many ended clearly worse. Returns (T, spread, n_worse)."""
+    spread, n_worse = (0.0, 0.0), 0
+    srng = np.random.default_rng(12345)
+    for rnd in range(3):
+        edges = [_scene_edges(sc, T, o, rng) for sc in scenes]
+        s_T = _total(scenes, edges, T, o.sigmas_px[-1], tuple(offset[0]))
+        ends = []
+        for _ in range(o.stability_checks):
+            Tk = geometry.perturb_T(T, o.stability_deg, 0.0 if o.fix_translation else o.stability_m, srng)
+            ends.append(_stages(scenes, Tk, o, o.stability_sigmas_px, rng, hist, T0, [offset[0].copy()]))
+        sk = [_total(scenes, edges, Te, o.sigmas_px[-1], tuple(offset[0])) for Te in ends]
+        dev = [geometry.pose_error(Te, T) for Te in ends]
+        hist.append({"stage": "stability", "round": rnd, "score_result": s_T, "scores": sk, "dev": dev})
+        k = int(np.argmax(sk))
+        if sk[k] > s_T * (1 + o.adopt_margin):
+            T = ends[k]
+            continue
+        # restarts ending in a clearly worse minimum say nothing about this one; those about as good must be it
+        near = [d for d, v in zip(dev, sk) if v >= s_T * (1 - o.ambiguity_margin)]
+        n_worse = len(dev) - len(near)
+        spread = (max(d[0] for d in near), max(d[1] for d in near)) if near else (float("nan"), float("nan"))
+        break
+    else:
+        spread = (float("inf"), float("inf"))
+    return T, spread, n_worse
+
+
+def _translation_drops(scenes, edges, T, o: DenseOptions, offset, hist) -> dict:
+    """Observability of the translation: relative score drop +-``observe_m`` along the three weakest directions
+    (sideways / vertical shift with the yaw / pitch that keeps the median edge depth in place, and the optical axis)."""
+    drops = {}
+    z = np.concatenate([(e.points @ T[:3, :3].T + T[:3, 3])[:, 2] for e in edges]) if edges else np.zeros(0)
+    Z = float(np.median(z[z > 0.3])) if np.any(z > 0.3) else 10.0
+    V = {"x (with yaw)": np.array([0.0, -1.0 / Z, 0.0, 1.0, 0.0, 0.0]), "y (with pitch)": np.array([1.0 / Z, 0.0, 0.0, 0.0, 1.0, 0.0]),
+         "z": np.array([0.0, 0.0, 0.0, 0.0, 0.0, 1.0])}
+    for name, v in V.items():
+        sc_pm = [_total(scenes, edges, _apply(sg * o.observe_m * v, T), o.sigmas_px[-2] if len(o.sigmas_px) > 1 else o.sigmas_px[-1], tuple(offset[0])) for sg in (-1.0, 1.0)]
+        s_mid = _total(scenes, edges, T, o.sigmas_px[-2] if len(o.sigmas_px) > 1 else o.sigmas_px[-1], tuple(offset[0]))
+        drops[name] = float(1.0 - max(sc_pm) / max(s_mid, 1e-12))
+    hist.append({"stage": "observability", "median_depth_m": Z, "drops": drops})
+    return drops
+
+
+def _dense_verdict(o: DenseOptions, n_pts, spread, n_worse, drops, s_init, s_end, moved) -> tuple[bool, str]:
+    """(converged, message) from the edge point count, the restarts' spread, the translation drops and the scores."""
+    weak = [k for k, d in drops.items() if d < o.observe_min_drop]
+    if n_pts < o.min_edge_points:
+        return False, f"did not converge: only {n_pts} LiDAR edge points in view (< {o.min_edge_points})"
+    if np.isnan(spread[0]):
+        return False, f"did not converge: none of the {o.stability_checks} restarts {o.stability_deg:g} deg / {o.stability_m * 100:g} cm away came back (all ended in worse minima) - the basin is very narrow"
+    if not np.isfinite(spread[0]):
+        return False, "did not converge: restarts from the result kept finding higher scores"
+    if spread[0] > o.stability_tol_deg or spread[1] > o.stability_tol_m:
+        return False, (f"did not converge: restarts {o.stability_deg:g} deg / {o.stability_m * 100:g} cm away end up to {spread[0]:.3f} deg / "
+                       f"{spread[1] * 100:.1f} cm from the result (tolerance {o.stability_tol_deg:g} deg / {o.stability_tol_m * 100:g} cm) - the optimum is not pinned down that well")
+    if weak:
+        return False, ("did not converge: the translation is not observed to " + f"{o.observe_m * 100:g} cm along " + ", ".join(weak) + " (the score drops by only "
+                       + ", ".join(f"{100 * drops[k]:.2f} %" for k in weak) + f" at +-{o.observe_m * 100:g} cm, < {100 * o.observe_min_drop:g} %) - add near structure or scenes, or measure the translation")
+    if s_end < s_init:
+        return False, f"did not converge: the dense score got worse ({s_init:.4f} -> {s_end:.4f})"
+    worse = f" ({n_worse} of {o.stability_checks} ended in a clearly worse minimum)" if n_worse else ""
+    return True, f"converged: dense score {s_init:.4f} -> {s_end:.4f}, moved {moved[0]:.3f} deg / {moved[1] * 100:.1f} cm, restarts within {spread[0]:.3f} deg / {spread[1] * 100:.1f} cm{worse}"

@@ -93,12 +93,48 @@ def lidar_edges(
     return LidarEdges(q[first], d[first], int(sum(p[2] for p in parts)), int(sum(p[3] for p in parts)))
 
 
+@dataclass
+class _VoxelPlanes:
+    """Planar voxels of one grid: every voxel's key / point index / count, and the planar ones' centroid, normal,
+    covariance, smallest eigenvalue and inlier count (index ``idx`` into the voxels)."""
+
+    uk: np.ndarray  # (V,) voxel keys
+    inv: np.ndarray  # (N,) voxel of each point
+    cnt: np.ndarray  # (V,) points per voxel
+    noise: float  # typical plane thickness (m)
+    idx: np.ndarray  # (K,) planar voxels
+    pk: np.ndarray  # (K,) their keys
+    pm: np.ndarray  # (K,3) centroids
+    pn: np.ndarray  # (K,3) unit normals
+    pC: np.ndarray  # (K,3,3) covariances
+    pw0: np.ndarray  # (K,) smallest eigenvalue (m^2)
+    pcnt: np.ndarray  # (K,) inlier counts
+
+
 def _edges_one_grid(P, tree, voxel, shift, min_points, max_plane_rms, angle_range_deg, sample_step, support, max_incidence_deg, max_line_sigma, crease_radius, crease_exclusion=0.0):
+    """Edge samples of one voxel grid (size ``voxel``, shifted by ``shift`` voxels): planar voxels, pairs of them at
+    an edge angle, their intersection lines where both patches reach, samples with real points on both faces.
+    Returns (samples (n,3), directions (n,3), planar voxels, pairs kept)."""
     empty = (np.zeros((0, 3)), np.zeros((0, 3)), 0, 0)
+    vp = _voxel_planes(P, voxel, shift, min_points, max_plane_rms, max_incidence_deg)
+    if vp is None:
+        return empty
+    a_idx, b_idx, cosang = _plane_pairs(vp, angle_range_deg)
+    if len(a_idx) == 0:
+        return empty
+    seg = _pair_segments(P, vp, a_idx, b_idx, cosang, voxel, sample_step, support, max_line_sigma, crease_exclusion)
+    if seg is None:
+        return empty
+    q, dirs, n_pairs = _supported_samples(tree, *seg, sample_step, support, crease_radius)
+    return q, dirs, len(vp.pk), n_pairs
+
+
+def _voxel_planes(P, voxel, shift, min_points, max_plane_rms, max_incidence_deg) -> _VoxelPlanes | None:
+    """Per-voxel plane fits (first and second moments -> covariance -> batched eigen-decomposition), one robust pass
+    without points far from the voxel's plane; planar, not grazing voxels kept. None with fewer than two."""
     ijk = np.floor(P / voxel + shift).astype(np.int64)
     keys = _key(ijk)
     uk, inv, cnt = np.unique(keys, return_inverse=True, return_counts=True)
-    # per-voxel first and second moments -> covariance -> batched eigen-decomposition
     S1 = np.stack([np.bincount(inv, P[:, a], len(uk)) for a in range(3)], 1)
     mean = S1 / cnt[:, None]
     Q = P - mean[inv]
@@ -130,32 +166,40 @@ def _edges_one_grid(P, tree, voxel, shift, min_points, max_plane_rms, angle_rang
     planar &= np.abs(np.sum(view * normal, 1)) > np.cos(np.radians(max_incidence_deg))
     idx = np.flatnonzero(ok)[planar]
     if len(idx) < 2:
-        return empty
-    pk, pm, pn, pC = uk[idx], mean[idx], normal[planar], C[idx]
-    pw0, pcnt = np.maximum(w[planar, 0], 1e-8), cnt2[idx]
+        return None
+    return _VoxelPlanes(uk, inv, cnt, noise, idx, uk[idx], mean[idx], normal[planar], C[idx], np.maximum(w[planar, 0], 1e-8), cnt2[idx])
+
+
+def _plane_pairs(vp: _VoxelPlanes, angle_range_deg) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Candidate pairs: planar voxels within 2 voxels (each unordered pair once) whose normals meet at an angle in
+    ``angle_range_deg``. Returns indices (into the planar voxels) of both and |cos| of their angle."""
+    pk, pn = vp.pk, vp.pn
     pijk = np.stack([((pk >> 42) & ((1 << 21) - 1)) - (1 << 20), ((pk >> 21) & ((1 << 21) - 1)) - (1 << 20), (pk & ((1 << 21) - 1)) - (1 << 20)], 1)
     order = np.argsort(pk)
     sk = pk[order]
-    # candidate pairs: planar voxels within 2 voxels (each unordered pair once)
     nb = _key((pijk[:, None, :] + _OFFSETS[None]).reshape(-1, 3))
     pos = np.searchsorted(sk, nb)
     pos = np.minimum(pos, len(sk) - 1)
     found = sk[pos] == nb
     a_idx = np.repeat(np.arange(len(pk)), len(_OFFSETS))[found]
     b_idx = order[pos[found]]
-    n1, n2 = pn[a_idx], pn[b_idx]
-    cosang = np.abs(np.sum(n1 * n2, 1))
+    cosang = np.abs(np.sum(pn[a_idx] * pn[b_idx], 1))
     lo, hi = np.radians(angle_range_deg)
     keep = cosang < np.cos(min(lo, np.pi - hi))
-    a_idx, b_idx, n1, n2 = a_idx[keep], b_idx[keep], n1[keep], n2[keep]
-    if len(a_idx) == 0:
-        return empty
-    c1, c2 = pm[a_idx], pm[b_idx]
+    return a_idx[keep], b_idx[keep], cosang[keep]
+
+
+def _pair_segments(P, vp: _VoxelPlanes, a_idx, b_idx, cosang, voxel, sample_step, support, max_line_sigma, crease_exclusion):
+    """Intersection line of each pair (planes refitted away from the crease with ``crease_exclusion``), kept where
+    both patches reach it, its predicted position error is below ``max_line_sigma`` and the patches overlap along it.
+    Returns (point on line, direction, unit normal to the line in face 1 / face 2, segment start / end) or None."""
+    n1, n2 = vp.pn[a_idx], vp.pn[b_idx]
+    c1, c2 = vp.pm[a_idx], vp.pm[b_idx]
     if crease_exclusion > 0:
-        order = np.argsort(inv, kind="stable")
-        start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-        c1n, n1n = _refit_away_from(P, order, start, cnt, idx[a_idx], c1, n1, c2, n2, 2.5 * noise, crease_exclusion)
-        c2, n2 = _refit_away_from(P, order, start, cnt, idx[b_idx], c2, n2, c1, n1, 2.5 * noise, crease_exclusion)
+        order = np.argsort(vp.inv, kind="stable")
+        start = np.concatenate([[0], np.cumsum(vp.cnt)[:-1]])
+        c1n, n1n = _refit_away_from(P, order, start, vp.cnt, vp.idx[a_idx], c1, n1, c2, n2, 2.5 * vp.noise, crease_exclusion)
+        c2, n2 = _refit_away_from(P, order, start, vp.cnt, vp.idx[b_idx], c2, n2, c1, n1, 2.5 * vp.noise, crease_exclusion)
         c1, n1 = c1n, n1n
     d = np.cross(n1, n2)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -174,14 +218,14 @@ def _edges_one_grid(P, tree, voxel, shift, min_points, max_plane_rms, angle_rang
     dist1, dist2 = np.linalg.norm(u1, axis=1), np.linalg.norm(u2, axis=1)
     u1 /= np.maximum(dist1, 1e-9)[:, None]
     u2 /= np.maximum(dist2, 1e-9)[:, None]
-    C1, C2 = pC[a_idx], pC[b_idx]
+    C1, C2 = vp.pC[a_idx], vp.pC[b_idx]
     half1 = np.sqrt(3 * np.einsum("ni,nij,nj->n", u1, C1, u1))
     half2 = np.sqrt(3 * np.einsum("ni,nij,nj->n", u2, C2, u2))
     reach = (dist1 - half1 < support + voxel) & (dist2 - half2 < support + voxel) & (dist1 < 2.5 * voxel) & (dist2 < 2.5 * voxel)
     # predicted error of the line position: plane offset noise plus normal (tilt) noise extrapolated to the line
-    sig1 = np.sqrt(pw0[a_idx] / pcnt[a_idx] * (1 + dist1**2 / np.maximum(half1**2 / 3, 1e-6)))
-    sig2 = np.sqrt(pw0[b_idx] / pcnt[b_idx] * (1 + dist2**2 / np.maximum(half2**2 / 3, 1e-6)))
-    sin_ang = np.sqrt(np.maximum(1 - cosang[keep] ** 2, 1e-6))
+    sig1 = np.sqrt(vp.pw0[a_idx] / vp.pcnt[a_idx] * (1 + dist1**2 / np.maximum(half1**2 / 3, 1e-6)))
+    sig2 = np.sqrt(vp.pw0[b_idx] / vp.pcnt[b_idx] * (1 + dist2**2 / np.maximum(half2**2 / 3, 1e-6)))
+    sin_ang = np.sqrt(np.maximum(1 - cosang ** 2, 1e-6))
     reach &= np.hypot(sig1, sig2) / sin_ang < max_line_sigma
     # segment: overlap of both patches along the line
     t1 = np.sum((c1 - x0) * d, 1)
@@ -192,17 +236,20 @@ def _edges_one_grid(P, tree, voxel, shift, min_points, max_plane_rms, angle_rang
     tb = np.minimum(t1 + e1, t2 + e2)
     reach &= tb - ta > sample_step
     if not reach.any():
-        return empty
-    x0, d, u1, u2, ta, tb = x0[reach], d[reach], u1[reach], u2[reach], ta[reach], tb[reach]
+        return None
+    return x0[reach], d[reach], u1[reach], u2[reach], ta[reach], tb[reach]
+
+
+def _supported_samples(tree, x0, d, u1, u2, ta, tb, sample_step, support, crease_radius):
+    """Samples every ``sample_step`` along each segment, kept where real points lie on both planes next to the line
+    and on the crease itself, and none on the planes' extensions beyond the line (a real crease ends both planes; a
+    phantom intersection of two planes that continue does not). Returns (samples, directions, pairs with a sample)."""
     ns = np.ceil((tb - ta) / sample_step).astype(int)
     pair = np.repeat(np.arange(len(ns)), ns)
     start = np.concatenate([[0], np.cumsum(ns)[:-1]])
     k = np.arange(ns.sum()) - np.repeat(start, ns)
     t = ta[pair] + (k + 0.5) * sample_step
     q = x0[pair] + t[:, None] * d[pair]
-    # real points on both planes next to the line
-    # real points on both planes next to the line, on the crease itself, and none on the planes' extensions
-    # beyond the line (a real crease ends both planes; a phantom intersection of two planes that continue does not)
     r = 0.5 * support
     uu1, uu2 = u1[pair], u2[pair]
     s1, _ = tree.query(q + support * uu1, k=1, distance_upper_bound=r)
@@ -211,7 +258,7 @@ def _edges_one_grid(P, tree, voxel, shift, min_points, max_plane_rms, angle_rang
     x1, _ = tree.query(q - 1.5 * support * uu1, k=1, distance_upper_bound=r)
     x2, _ = tree.query(q - 1.5 * support * uu2, k=1, distance_upper_bound=r)
     good = np.isfinite(s1) & np.isfinite(s2) & np.isfinite(s0) & ~np.isfinite(x1) & ~np.isfinite(x2)
-    return q[good], d[pair][good], len(pk), int(len(np.unique(pair[good])))
+    return q[good], d[pair][good], int(len(np.unique(pair[good])))
 
 
 def _refit_away_from(P, order, start, cnt, vox, c, n, c_other, n_other, inlier_m, exclusion_m):

@@ -267,16 +267,31 @@ def _fit_rectangle(xy: np.ndarray, size: tuple[float, float]):
 
 def detect_boards_in_cloud(points: np.ndarray, board_size_m: tuple[float, float], max_boards: int = 8, noise_m: float = 0.02, remove_planes: int = 3,
                            min_points: int = 60, size_tolerance: float = 0.15, max_range_m: float = 20.0, rng: np.random.Generator | None = None) -> list[BoardInCloud]:
-    """Rectangular boards of known size (width, height in m) in a cloud (LiDAR frame)."""
-    from scipy import ndimage
-
+    """Rectangular boards of known size (width, height in m) in a cloud (LiDAR frame): the ground removed, connected
+    components on a voxel grid, per component (largest first) a plane, its largest 2-D patch and a rectangle fit."""
     rng = rng or np.random.default_rng(0)
     P = np.asarray(points, float)
     idx_all = np.flatnonzero(np.linalg.norm(P, axis=1) < max_range_m)
     thr = max(3 * noise_m, 0.03)
-    keep = idx_all
-    w, h = board_size_m
-    # 1. remove the ground (large, nearly horizontal planes) so that boards on stands become separate components
+    keep = _remove_ground(P, idx_all, thr, remove_planes, rng)
+    comp, counts = _voxel_components(P[keep])
+    found: list[BoardInCloud] = []
+    order = np.argsort(-counts)
+    for c in order:  # loop over components (tens), never over points
+        if c == 0 or counts[c] < min_points:
+            continue
+        board = _board_in_component(P, keep[comp == c], board_size_m, thr, min_points, size_tolerance, rng)
+        if board is None:
+            continue
+        found.append(board)
+        if len(found) >= max_boards:
+            break
+    return found
+
+
+def _remove_ground(P, keep, thr, remove_planes, rng) -> np.ndarray:
+    """Indices ``keep`` without the large, nearly horizontal planes (up to ``remove_planes``), so that boards on
+    stands become separate components."""
     for _ in range(remove_planes):
         if len(keep) < 1000:
             break
@@ -287,9 +302,15 @@ def detect_boards_in_cloud(points: np.ndarray, board_size_m: tuple[float, float]
         if abs(n[2]) < 0.9 or inl.sum() < 0.1 * len(keep):
             break
         keep = keep[~inl]
-    # 2. connected components on a voxel grid
+    return keep
+
+
+def _voxel_components(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Connected components (26-neighbourhood) of the occupied voxels (8 cm; 15 cm when that grid is too large).
+    Returns each point's component label (1..) and the point count per label."""
+    from scipy import ndimage
+
     vox = 0.08
-    Q = P[keep]
     ijk = np.floor((Q - Q.min(0)) / vox).astype(np.int64)
     shape = ijk.max(0) + 1
     if np.prod(shape) > 60_000_000:
@@ -300,60 +321,66 @@ def detect_boards_in_cloud(points: np.ndarray, board_size_m: tuple[float, float]
     occ[ijk[:, 0], ijk[:, 1], ijk[:, 2]] = True
     lab, nlab = ndimage.label(occ, structure=np.ones((3, 3, 3)))
     comp = lab[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
-    counts = np.bincount(comp, minlength=nlab + 1)
-    diag = np.hypot(w, h)
-    found: list[BoardInCloud] = []
-    order = np.argsort(-counts)
-    for c in order:  # loop over components (tens), never over points
-        if c == 0 or counts[c] < min_points:
-            continue
-        sel = keep[comp == c]
-        C = P[sel]
-        if np.ptp(C, axis=0).max() > 4 * diag:
-            continue
-        fit = ransac_plane(C, thr, iterations=200, rng=rng)
-        if fit is None:
-            continue
-        n, d, inl = fit
-        if inl.sum() < min_points:
-            continue
-        Ci = C[inl]
-        c0 = Ci.mean(0)
-        if n @ (-c0) < 0:
-            n, d = -n, -d
-        u = np.cross([0.0, 0.0, 1.0], n)
-        if np.linalg.norm(u) < 1e-6:
-            u = np.array([1.0, 0, 0])
-        u /= np.linalg.norm(u)
-        v = np.cross(n, u)
-        xy = np.column_stack([(Ci - c0) @ u, (Ci - c0) @ v])
-        # the largest 2-D patch after a morphological opening (drops a thin stand or clutter touching the plane)
-        g = 0.04
-        lo = xy.min(0) - 3 * g
-        gij = np.floor((xy - lo) / g).astype(int)
-        occ2 = np.zeros(gij.max(0) + 4, bool)
-        occ2[gij[:, 0], gij[:, 1]] = True
-        occ2 = ndimage.binary_closing(occ2, np.ones((3, 3)))
-        occ2 = ndimage.binary_opening(occ2, np.ones((3, 3)), iterations=2)
-        lab2, nl2 = ndimage.label(occ2, structure=np.ones((3, 3)))
-        if nl2 == 0:
-            continue
-        l2 = lab2[gij[:, 0], gij[:, 1]]
-        big = np.argmax(np.bincount(l2.ravel(), minlength=nl2 + 1)[1:]) + 1
-        xy, Ci2, idx_in = xy[l2 == big], Ci[l2 == big], sel[inl][l2 == big]
-        if len(xy) < min_points:
-            continue
-        (_, _), (e1, e2), _ = cv2.minAreaRect(xy.astype(np.float32))
-        e_small, e_big = sorted((e1, e2))
-        if not (abs(e_big - max(w, h)) < size_tolerance * max(w, h) and abs(e_small - min(w, h)) < size_tolerance * min(w, h)):
-            continue
-        corners2, size_fit = _fit_rectangle(xy, (w, h))
-        corners3 = c0 + corners2[:, :1] * u + corners2[:, 1:] * v
-        rms = float(np.sqrt(np.mean((Ci2 @ n + d) ** 2)))
-        found.append(BoardInCloud(corners3, c0, n, int(len(xy)), rms, size_fit, idx_in))
-        if len(found) >= max_boards:
-            break
-    return found
+    return comp, np.bincount(comp, minlength=nlab + 1)
+
+
+def _board_in_component(P, sel, board_size_m, thr, min_points, size_tolerance, rng) -> BoardInCloud | None:
+    """The board in one component (point indices ``sel``), or None: not too large, a plane (normal towards the
+    sensor), its largest 2-D patch, the patch's minimum-area rectangle within ``size_tolerance`` of the board size."""
+    w, h = board_size_m
+    C = P[sel]
+    if np.ptp(C, axis=0).max() > 4 * np.hypot(w, h):
+        return None
+    fit = ransac_plane(C, thr, iterations=200, rng=rng)
+    if fit is None:
+        return None
+    n, d, inl = fit
+    if inl.sum() < min_points:
+        return None
+    Ci = C[inl]
+    c0 = Ci.mean(0)
+    if n @ (-c0) < 0:
+        n, d = -n, -d
+    u = np.cross([0.0, 0.0, 1.0], n)
+    if np.linalg.norm(u) < 1e-6:
+        u = np.array([1.0, 0, 0])
+    u /= np.linalg.norm(u)
+    v = np.cross(n, u)
+    xy = np.column_stack([(Ci - c0) @ u, (Ci - c0) @ v])
+    patch = _largest_patch(xy)
+    if patch is None:
+        return None
+    xy, Ci2, idx_in = xy[patch], Ci[patch], sel[inl][patch]
+    if len(xy) < min_points:
+        return None
+    (_, _), (e1, e2), _ = cv2.minAreaRect(xy.astype(np.float32))
+    e_small, e_big = sorted((e1, e2))
+    if not (abs(e_big - max(w, h)) < size_tolerance * max(w, h) and abs(e_small - min(w, h)) < size_tolerance * min(w, h)):
+        return None
+    corners2, size_fit = _fit_rectangle(xy, (w, h))
+    corners3 = c0 + corners2[:, :1] * u + corners2[:, 1:] * v
+    rms = float(np.sqrt(np.mean((Ci2 @ n + d) ** 2)))
+    return BoardInCloud(corners3, c0, n, int(len(xy)), rms, size_fit, idx_in)
+
+
+def _largest_patch(xy: np.ndarray) -> np.ndarray | None:
+    """Mask of the in-plane points (m) in the largest 2-D patch after a morphological closing and opening on a 4 cm
+    grid (drops a thin stand or clutter touching the plane); None when nothing survives the opening."""
+    from scipy import ndimage
+
+    g = 0.04
+    lo = xy.min(0) - 3 * g
+    gij = np.floor((xy - lo) / g).astype(int)
+    occ2 = np.zeros(gij.max(0) + 4, bool)
+    occ2[gij[:, 0], gij[:, 1]] = True
+    occ2 = ndimage.binary_closing(occ2, np.ones((3, 3)))
+    occ2 = ndimage.binary_opening(occ2, np.ones((3, 3)), iterations=2)
+    lab2, nl2 = ndimage.label(occ2, structure=np.ones((3, 3)))
+    if nl2 == 0:
+        return None
+    l2 = lab2[gij[:, 0], gij[:, 1]]
+    big = np.argmax(np.bincount(l2.ravel(), minlength=nl2 + 1)[1:]) + 1
+    return l2 == big
 
 
 # ------------------------------------------------------------------------------------------------------------------

@@ -311,62 +311,15 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     warnings: list[str] = []
     history: list[dict] = []
     score_before = _score_all(scenes, T0)
-    if o.coarse_search_deg > 0:
-        starts = coarse_rotation_search(scenes, T0, o.coarse_search_deg, o.coarse_step_deg, n_best=o.n_starts)
-        for Tc, sc_ in starts:
-            history.append({"stage": "coarse-rotation", "score": sc_, "rot_change_deg": geometry.pose_error(Tc, T0)[0]})
-        starts = [T0] + [t for t, _ in starts]
-        if o.translation_starts_m > 0 and not o.fix_translation:
-            Tb = starts[1]
-            for ax in range(3):
-                for sg in (-1, 1):
-                    Tt = Tb.copy()
-                    Tt[ax, 3] += sg * o.translation_starts_m
-                    starts.append(Tt)
-    else:
-        starts = [T0]
+    starts = _start_poses(scenes, T0, o, history)
     matches0 = [match_edges(sc, T0, o.radii_px[-1], o.k_neighbours, o.max_angle_deg) for sc in scenes]
     residuals_before = np.concatenate([m[3] for m in matches0]) if matches0 else np.zeros(0)
-    best = None
-    for k, Ts in enumerate(starts):
-        T, conv, hist = _run_stages(scenes, Ts, o, t_prior=T0[:3, 3])
-        fine = _score_all(scenes, T, cap=o.radii_px[-1])
-        history += [{"start": k, **h} for h in hist]
-        history.append({"start": k, "final_score_px": fine, "converged": conv})
-        if best is None or fine < best[0]:
-            best = (fine, T, conv)
-    _, T, converged_stage = best
+    T, converged_stage = _best_start(scenes, starts, o, T0, history)
     valley_settled = True
     if o.valley_steps_m and not o.fix_translation:
         T, converged_stage, valley_settled, vh = _valley_restarts(scenes, T, converged_stage, o, T0)
         history += vh
-    # stability check: restarts from the result moved by stability_deg / stability_m (whole coarse-to-fine schedule)
-    # must come back to it; a result that the restarts leave is reported as not converged
-    stable = True
-    if o.stability_checks > 0:
-        rng = np.random.default_rng(12345)
-        fine_opts = o if o.stability_full else RefineOptions(**{**o.__dict__, "radii_px": o.radii_px[-3:], "rotation_only_stages": 0})
-        cost_T = alignment_cost(scenes, T, o)
-        for rnd in range(3):
-            improved = False
-            for k in range(o.stability_checks):
-                # with a fixed (measured) translation only the rotation is restarted: a moved translation could not come back
-                Tk = geometry.perturb_T(T, o.stability_deg, 0.0 if o.fix_translation else o.stability_m, rng)
-                if o.stability_full and o.coarse_search_deg > 0:
-                    Tk = coarse_rotation_search(scenes, Tk, min(o.coarse_search_deg, 2 * o.stability_deg), o.coarse_step_deg / 2, n_best=1)[0][0]
-                Tk2, conv_k, _ = _run_stages(scenes, Tk, fine_opts, t_prior=T0[:3, 3])
-                ck = alignment_cost(scenes, Tk2, o)
-                dd, dm = geometry.pose_error(Tk2, T)
-                history.append({"stage": "stability", "round": rnd, "check": k, "cost": ck, "cost_result": cost_T, "back_deg": dd, "back_m": dm, "T": Tk2})
-                if dd <= o.stability_tol_deg and dm <= o.stability_tol_m:
-                    continue
-                if ck < cost_T * (1 - o.stability_margin):  # a clearly better minimum nearby: adopt it, check again
-                    T, cost_T, converged_stage, improved = Tk2, ck, conv_k, True
-                    break
-                if ck < cost_T * (1 + o.stability_margin):  # a different minimum about as good: ambiguous
-                    stable = False
-            if not improved:
-                break
+    T, converged_stage, stable = _stability_restarts(scenes, T, converged_stage, o, T0, history)
     # final matching, statistics
     matches = [match_edges(sc, T, o.radii_px[-1], o.k_neighbours, o.max_angle_deg) for sc in scenes]
     n_match = sum(len(m[0]) for m in matches)
@@ -374,20 +327,7 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     inl = np.abs(r_after) < 3 * o.loss_scale_px
     rms = float(np.sqrt(np.mean(r_after[inl] ** 2))) if inl.any() else float("nan")
     mean_abs = float(np.mean(np.abs(r_after))) if len(r_after) else float("nan")
-    # sigma from the Jacobian at the solution (robust-weighted), all 6 parameters
-    sigma = np.full(6, np.inf)
-    JtJ = np.zeros((6, 6))
-    if n_match >= 6:
-        fin = least_squares(_residual_fn, np.zeros(6), args=(T, scenes, matches, False), loss="cauchy", f_scale=o.loss_scale_px,
-                            x_scale=np.array([1e-3] * 3 + [1e-2] * 3), max_nfev=1)
-        J = fin.jac
-        JtJ = J.T @ J
-        s2 = 2 * fin.cost / max(1, len(fin.fun) - 6)
-        try:
-            cov = np.linalg.inv(JtJ) * s2
-            sigma = np.sqrt(np.abs(np.diag(cov)))
-        except np.linalg.LinAlgError:
-            pass
+    sigma, JtJ = _jacobian_sigma(scenes, matches, T, o, n_match)
     sigma_boot, boot_samples = block_bootstrap_sigma(scenes, matches, T, o, return_samples=True) if o.bootstrap > 0 and n_match >= 6 else (np.full(6, np.nan), np.zeros((0, 6)))
     n_in_view = 0
     for sc in scenes:
@@ -401,13 +341,7 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     # convergence verdict
     moved_deg, moved_m = geometry.pose_error(T, T0)
     stable = stable and valley_settled
-    # where the restarts (valley and stability) ended, as parameter offsets from the result, and their cost ratio
-    cost_final = alignment_cost(scenes, T, o) if any(h.get("stage") in ("valley", "stability") for h in history) else float("nan")
-    restarts = []
-    for h in history:
-        if h.get("stage") in ("valley", "stability"):
-            dT = h.pop("T") @ geometry.invert_T(T)
-            restarts.append([*geometry.R_to_rotvec(dT[:3, :3]).tolist(), *dT[:3, 3].tolist(), float(h["cost"] / max(cost_final, 1e-12))])
+    restarts = _restart_offsets(scenes, T, o, history)
     # camera centre in the LiDAR frame: what a tape measure gives; a wrong minimum can drag it far away
     centre_move = float(np.linalg.norm(geometry.invert_T(T)[:3, 3] - geometry.invert_T(T0)[:3, 3]))
     checks = {"sigma_bootstrap": sigma_boot.tolist(), "bootstrap_samples": boot_samples.tolist(), "sigma_jacobian": sigma.tolist(), "centre_move_m": centre_move,
@@ -417,6 +351,109 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     if np.all(np.isfinite(sigma_boot)):
         sigma_boot = sigma_for_verdict(checks, o)  # reported: robust spread, ambiguity, floor (the raw std stays in checks)
     prof = cost_profiles(scenes, T, matches, o.loss_scale_px)
+    return RefineResult(T, T0, bool(ok), msg, rms, mean_abs, n_match, int(inl.sum()), sigma, score_before, score_after, obs, warnings, history,
+                        _match_arrays(scenes, T, matches), residuals_before, r_after, prof, sigma_boot, checks)
+
+
+def _start_poses(scenes, T0, o, history) -> list[np.ndarray]:
+    """Starts of the coarse-to-fine schedule: ``T0``, the best rotations of the coarse grid search (logged to
+    ``history``) and, with ``translation_starts_m``, the best one shifted +-that along each axis."""
+    if o.coarse_search_deg <= 0:
+        return [T0]
+    starts = coarse_rotation_search(scenes, T0, o.coarse_search_deg, o.coarse_step_deg, n_best=o.n_starts)
+    for Tc, sc_ in starts:
+        history.append({"stage": "coarse-rotation", "score": sc_, "rot_change_deg": geometry.pose_error(Tc, T0)[0]})
+    starts = [T0] + [t for t, _ in starts]
+    if o.translation_starts_m > 0 and not o.fix_translation:
+        Tb = starts[1]
+        for ax in range(3):
+            for sg in (-1, 1):
+                Tt = Tb.copy()
+                Tt[ax, 3] += sg * o.translation_starts_m
+                starts.append(Tt)
+    return starts
+
+
+def _best_start(scenes, starts, o, T0, history) -> tuple[np.ndarray, bool]:
+    """The whole schedule from every start; the result with the lowest capped edge score at the finest radius wins."""
+    best = None
+    for k, Ts in enumerate(starts):
+        T, conv, hist = _run_stages(scenes, Ts, o, t_prior=T0[:3, 3])
+        fine = _score_all(scenes, T, cap=o.radii_px[-1])
+        history += [{"start": k, **h} for h in hist]
+        history.append({"start": k, "final_score_px": fine, "converged": conv})
+        if best is None or fine < best[0]:
+            best = (fine, T, conv)
+    _, T, converged_stage = best
+    return T, converged_stage
+
+
+def _stability_restarts(scenes, T, converged_stage, o, T0, history) -> tuple[np.ndarray, bool, bool]:
+    """Stability check: restarts from the result moved by stability_deg / stability_m (whole coarse-to-fine schedule)
+    must come back to it; a clearly better minimum nearby is adopted (up to three rounds), one about as good makes
+    the result not stable. Returns (T, converged_stage, stable)."""
+    stable = True
+    if o.stability_checks <= 0:
+        return T, converged_stage, stable
+    rng = np.random.default_rng(12345)
+    fine_opts = o if o.stability_full else RefineOptions(**{**o.__dict__, "radii_px": o.radii_px[-3:], "rotation_only_stages": 0})
+    cost_T = alignment_cost(scenes, T, o)
+    for rnd in range(3):
+        improved = False
+        for k in range(o.stability_checks):
+            # with a fixed (measured) translation only the rotation is restarted: a moved translation could not come back
+            Tk = geometry.perturb_T(T, o.stability_deg, 0.0 if o.fix_translation else o.stability_m, rng)
+            if o.stability_full and o.coarse_search_deg > 0:
+                Tk = coarse_rotation_search(scenes, Tk, min(o.coarse_search_deg, 2 * o.stability_deg), o.coarse_step_deg / 2, n_best=1)[0][0]
+            Tk2, conv_k, _ = _run_stages(scenes, Tk, fine_opts, t_prior=T0[:3, 3])
+            ck = alignment_cost(scenes, Tk2, o)
+            dd, dm = geometry.pose_error(Tk2, T)
+            history.append({"stage": "stability", "round": rnd, "check": k, "cost": ck, "cost_result": cost_T, "back_deg": dd, "back_m": dm, "T": Tk2})
+            if dd <= o.stability_tol_deg and dm <= o.stability_tol_m:
+                continue
+            if ck < cost_T * (1 - o.stability_margin):  # a clearly better minimum nearby: adopt it, check again
+                T, cost_T, converged_stage, improved = Tk2, ck, conv_k, True
+                break
+            if ck < cost_T * (1 + o.stability_margin):  # a different minimum about as good: ambiguous
+                stable = False
+        if not improved:
+            break
+    return T, converged_stage, stable
+
+
+def _jacobian_sigma(scenes, matches, T, o, n_match) -> tuple[np.ndarray, np.ndarray]:
+    """Sigma of the 6 parameters from the Jacobian at the solution (robust-weighted; inf when under-determined) and
+    J^T J (zeros with fewer than 6 matches)."""
+    sigma = np.full(6, np.inf)
+    JtJ = np.zeros((6, 6))
+    if n_match >= 6:
+        fin = least_squares(_residual_fn, np.zeros(6), args=(T, scenes, matches, False), loss="cauchy", f_scale=o.loss_scale_px,
+                            x_scale=np.array([1e-3] * 3 + [1e-2] * 3), max_nfev=1)
+        J = fin.jac
+        JtJ = J.T @ J
+        s2 = 2 * fin.cost / max(1, len(fin.fun) - 6)
+        try:
+            cov = np.linalg.inv(JtJ) * s2
+            sigma = np.sqrt(np.abs(np.diag(cov)))
+        except np.linalg.LinAlgError:
+            pass
+    return sigma, JtJ
+
+
+def _restart_offsets(scenes, T, o, history) -> list:
+    """Where the restarts (valley and stability) ended, as parameter offsets (rotvec, translation) from the result,
+    and their cost ratio to it; takes the restarts' poses out of ``history``."""
+    cost_final = alignment_cost(scenes, T, o) if any(h.get("stage") in ("valley", "stability") for h in history) else float("nan")
+    restarts = []
+    for h in history:
+        if h.get("stage") in ("valley", "stability"):
+            dT = h.pop("T") @ geometry.invert_T(T)
+            restarts.append([*geometry.R_to_rotvec(dT[:3, :3]).tolist(), *dT[:3, 3].tolist(), float(h["cost"] / max(cost_final, 1e-12))])
+    return restarts
+
+
+def _match_arrays(scenes, T, matches) -> dict:
+    """The final matching's arrays per scene (LiDAR xyz, projected uv, matched line point and normal) for a report."""
     mt = {}
     for k, (sc, (idx, m, n, r)) in enumerate(zip(scenes, matches)):
         uv, _, _ = sc.camera.project_from(T, sc.lidar.points[idx])
@@ -424,8 +461,7 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
         mt[f"scene{k}_uv"] = uv
         mt[f"scene{k}_line_point"] = m
         mt[f"scene{k}_line_normal"] = n
-    return RefineResult(T, T0, bool(ok), msg, rms, mean_abs, n_match, int(inl.sum()), sigma, score_before, score_after, obs, warnings, history, mt,
-                        residuals_before, r_after, prof, sigma_boot, checks)
+    return mt
 
 
 def edge_verdict(checks: dict, o: RefineOptions) -> tuple[bool, str]:

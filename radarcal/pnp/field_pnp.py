@@ -264,15 +264,52 @@ def solve_field_pnp(camera: Camera, p_field: np.ndarray, uv: np.ndarray, names: 
     if n > 4:
         inl = _ransac(camera, P, uv, opt)
         method = "RANSAC(4-subsets, SQPnP) + " + method
-    for _ in range(3):  # refine on inliers, re-select inliers
-        Pi, ui = P[inl], uv[inl]
-        cands = []
-        for x0 in _candidate_params(camera, Pi, ui):
-            x, rms = _refine(camera, x0, Pi, ui)
-            if any(np.linalg.norm(x - c["x"]) < 1e-6 for c in cands):
-                continue
-            why = _plausibility(x, P[inl], surface_z, opt.min_camera_height_m)
-            cands.append({"x": x, "rms_px": rms, "plausible": why is None, "why_not": why})
+    best, ok, cands, inl = _refine_on_inliers(camera, P, uv, inl, surface_z, opt)
+    x = best["x"]
+    T = params_to_pose(x)
+    u, valid = _project(camera, x, P)
+    res = uv - u
+    rms = float(np.sqrt(np.mean(np.sum(res[inl] ** 2, axis=1))))
+    if rms > opt.max_rms_px:
+        worst = int(np.argmax(np.where(inl, np.linalg.norm(res, axis=1), -1)))
+        raise FieldPnPError(f"reprojection error {rms:.1f} px RMS is above the threshold {opt.max_rms_px:g} px (worst: {names[worst]} {np.linalg.norm(res[worst]):.1f} px) — a wrong landmark, wrong order or wrong intrinsics?")
+    for c in ok[1:]:
+        dang, dpos = geometry.pose_error(params_to_pose(c["x"]), T)
+        if c["rms_px"] < max(2.0 * rms, rms + opt.click_sigma_px) and (dang > 1.0 or dpos > 0.2):
+            warnings.append(f"ambiguous: another plausible pose fits almost as well ({c['rms_px']:.2f} px vs {rms:.2f} px, {dang:.1f} deg / {dpos:.2f} m away); add a fifth landmark")
+            break
+    cov, C, sig_c = _pose_covariance(camera, x, T, P[inl], opt)
+    sigma = {
+        "click_px": opt.click_sigma_px,
+        "rot_deg": np.degrees(np.sqrt(np.clip(np.diag(cov)[:3], 0, None))).tolist(),
+        "t_m": np.sqrt(np.clip(np.diag(cov)[3:], 0, None)).tolist(),
+        "camera_position_m": sig_c.tolist(),
+    }
+    if (~inl).any():
+        warnings.append("outliers rejected: " + ", ".join(f"{names[i]} ({np.linalg.norm(res[i]):.1f} px)" for i in np.nonzero(~inl)[0]))
+    cand_out = [{"rms_px": c["rms_px"], "plausible": c["plausible"], "why_not": c["why_not"], "T_cam_field": params_to_pose(c["x"])} for c in cands]
+    return FieldPnPResult(T, names, uv, P, inl, res, rms, cov, sigma, C, method, cand_out, warnings)
+
+
+def _pose_candidates(camera: Camera, Pi: np.ndarray, ui: np.ndarray, surface_z, opt: PnPOptions) -> list[dict]:
+    """Every closed-form start refined (LM) on the picks ``ui`` of ``Pi``, duplicates dropped, each with its RMS (px)
+    and plausibility (camera above the field, landmarks in front)."""
+    cands = []
+    for x0 in _candidate_params(camera, Pi, ui):
+        x, rms = _refine(camera, x0, Pi, ui)
+        if any(np.linalg.norm(x - c["x"]) < 1e-6 for c in cands):
+            continue
+        why = _plausibility(x, Pi, surface_z, opt.min_camera_height_m)
+        cands.append({"x": x, "rms_px": rms, "plausible": why is None, "why_not": why})
+    return cands
+
+
+def _refine_on_inliers(camera: Camera, P, uv, inl, surface_z, opt: PnPOptions):
+    """Refine on the inliers, re-select the inliers under the best plausible pose; up to three rounds. Returns (best
+    candidate, plausible candidates by RMS, all candidates, inliers); raises when no candidate is plausible."""
+    n = len(uv)
+    for _ in range(3):
+        cands = _pose_candidates(camera, P[inl], uv[inl], surface_z, opt)
         if not cands:
             raise FieldPnPError("no pose fits these picks (all closed-form solvers failed)")
         ok = [c for c in cands if c["plausible"]]
@@ -289,21 +326,13 @@ def solve_field_pnp(camera: Camera, p_field: np.ndarray, uv: np.ndarray, names: 
         if new.sum() < 4 or np.array_equal(new, inl):
             break
         inl = new
-    x = best["x"]
-    T = params_to_pose(x)
-    u, valid = _project(camera, x, P)
-    res = uv - u
-    rms = float(np.sqrt(np.mean(np.sum(res[inl] ** 2, axis=1))))
-    if rms > opt.max_rms_px:
-        worst = int(np.argmax(np.where(inl, np.linalg.norm(res, axis=1), -1)))
-        raise FieldPnPError(f"reprojection error {rms:.1f} px RMS is above the threshold {opt.max_rms_px:g} px (worst: {names[worst]} {np.linalg.norm(res[worst]):.1f} px) — a wrong landmark, wrong order or wrong intrinsics?")
-    for c in ok[1:]:
-        dang, dpos = geometry.pose_error(params_to_pose(c["x"]), T)
-        if c["rms_px"] < max(2.0 * rms, rms + opt.click_sigma_px) and (dang > 1.0 or dpos > 0.2):
-            warnings.append(f"ambiguous: another plausible pose fits almost as well ({c['rms_px']:.2f} px vs {rms:.2f} px, {dang:.1f} deg / {dpos:.2f} m away); add a fifth landmark")
-            break
-    # covariance from the Jacobian and the assumed click noise
-    J = reprojection_jacobian(camera, x, P[inl])
+    return best, ok, cands, inl
+
+
+def _pose_covariance(camera: Camera, x: np.ndarray, T: np.ndarray, P_inl: np.ndarray, opt: PnPOptions):
+    """Covariance of the 6 pose parameters from the Jacobian and the assumed click noise, the camera position C in
+    the field frame and its 1-sigma (m); raises when the picks leave the pose undetermined or poorly determined."""
+    J = reprojection_jacobian(camera, x, P_inl)
     JtJ = J.T @ J
     if np.linalg.cond(JtJ) > 1e14:
         raise FieldPnPError("the picks do not determine the pose (singular Jacobian): choose landmarks spread over the image and in depth")
@@ -320,13 +349,4 @@ def solve_field_pnp(camera: Camera, p_field: np.ndarray, uv: np.ndarray, names: 
     sig_c = np.sqrt(np.clip(np.diag(cov_c), 0, None))
     if np.linalg.norm(sig_c) > opt.max_position_sigma_m:
         raise FieldPnPError(f"the picks determine the pose poorly: camera position σ = {np.linalg.norm(sig_c):.1f} m for {opt.click_sigma_px:g} px clicks (limit {opt.max_position_sigma_m:g} m); choose landmarks spread over the image and in depth")
-    sigma = {
-        "click_px": opt.click_sigma_px,
-        "rot_deg": np.degrees(np.sqrt(np.clip(np.diag(cov)[:3], 0, None))).tolist(),
-        "t_m": np.sqrt(np.clip(np.diag(cov)[3:], 0, None)).tolist(),
-        "camera_position_m": sig_c.tolist(),
-    }
-    if (~inl).any():
-        warnings.append("outliers rejected: " + ", ".join(f"{names[i]} ({np.linalg.norm(res[i]):.1f} px)" for i in np.nonzero(~inl)[0]))
-    cand_out = [{"rms_px": c["rms_px"], "plausible": c["plausible"], "why_not": c["why_not"], "T_cam_field": params_to_pose(c["x"])} for c in cands]
-    return FieldPnPResult(T, names, uv, P, inl, res, rms, cov, sigma, C, method, cand_out, warnings)
+    return cov, C, sig_c

@@ -46,6 +46,7 @@ class LidarFirstConfig:
     compensate: bool = False  # move older window points along their track (measured worse: docs)
     seen_lidar_s: float = 0.25  # a track counts as seen by the LiDAR this long after its last cluster
     seen_box_s: float = 0.1
+    exclusion_m: float = 0.6  # output tracks nearer than this are one robot (a robot is <= 0.6 m across): one is measured
 
 
 def point_times(n: int, t_cloud: float, sweep_s: float, latency_s: float) -> np.ndarray:
@@ -232,10 +233,36 @@ class LidarFirst:
         names = assign_labels([tr.votes for tr in tk.tracks], live=[tr.state != LOST for tr in tk.tracks])
         for tr, lab in zip(tk.tracks, names):
             tr.label = lab
-        return [tr for tr in tk.tracks if tr.state in (CONFIRMED, LOST) and tr.evidence]
+        return self.one_per_robot([tr for tr in tk.tracks if tr.state in (CONFIRMED, LOST) and tr.evidence], t)
+
+    def one_per_robot(self, tracks: list[Track3D], t: float) -> list[Track3D]:
+        """One measured entry per robot (issue #19). A RoboMaster ground robot is at most 0.6 x 0.6 m (hero 0.8),
+        so two robots' centres are never nearer than ``exclusion_m`` (0.6 m, the inscribed circles touching): output
+        tracks (field xy at ``t``) nearer than that are one robot seen twice — a box whose depth is another robot's
+        cluster, a box-only track on a LiDAR track's robot, or a second track on one robot's points. Ranked: seen by
+        the LiDAR now, then by a box now, then coasting; a labelled track before an unlabelled one; then the fresher
+        last measurement, the smaller sigma. The strongest keeps its source; the weaker ones are reported as
+        ``predicted`` (:meth:`seen_source`: not a measurement, off the referee map), so their hypotheses (a name, or
+        a split cluster's track) stay visible until the two part. Nothing is deleted from the tracker.
+        Ground and aerial tracks are separate layers."""
+        r = self.cfg.exclusion_m
+        if r <= 0 or len(tracks) < 2:
+            return tracks
+        rank = {"lidar": 2, "depth": 1, "ground": 1, "predicted": 0}
+        order = sorted(tracks, key=lambda tr: (-rank[self.seen_source(tr, t)], tr.label is None, -tr.t_seen, tr.sigma, tr.id))
+        kept: list[Track3D] = []
+        for tr in order:
+            if any(o.aerial == tr.aerial and float(np.linalg.norm(o.x[:2] - tr.x[:2])) < r for o in kept):
+                tr.outranked_t = t
+            else:
+                kept.append(tr)
+        return tracks
 
     def seen_source(self, tr: Track3D, t: float) -> str:
-        """``lidar`` / ``depth`` / ``ground`` when this frame has evidence for the track, else ``predicted``."""
+        """``lidar`` / ``depth`` / ``ground`` when this frame has evidence for the track, else ``predicted`` (also
+        for a track another entry of the same robot outranked at ``t``: :meth:`one_per_robot`)."""
+        if tr.outranked_t == t:
+            return "predicted"
         if t - tr.t_lidar <= self.cfg.seen_lidar_s:
             return "lidar"
         if t - tr.t_box <= self.cfg.seen_box_s:

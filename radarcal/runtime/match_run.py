@@ -166,94 +166,37 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
 
     ``resolve_pose(bundle, camera, lidar) -> (T_field_cam or None, description)`` (``--field-pose``);
     ``log(text)``: a line for the operator (stderr)."""
-    from radarcal.runtime.detector import DetectionsFile
     from radarcal.runtime.loop import OnlineEvaluator, Pipeline, cloud_frames_as_pairs
     from radarcal.runtime.loop import run as run_loop
-    from radarcal.runtime.sources import merge_by_time, open_camera, open_clouds, prefetch_frames
+    from radarcal.runtime.marking import Marking
+    from radarcal.runtime.sources import merge_by_time
 
     o, b, rep, cfg = plan.opts, plan.bundle, plan.rep, plan.cfg
-    cam_name, lidar_name, has_clouds, lidar_only = plan.camera, plan.lidar, plan.has_clouds, plan.lidar_only
     for c in plan.cameras:
-        T_fc, src = resolve_pose(b, c, lidar_name)
+        T_fc, src = resolve_pose(b, c, plan.lidar)
         if T_fc is not None:  # in memory only (run never saves the bundle): the Pipeline reads bundle.T("field", cam)
             b.set_transform("field", c, T_fc, method=f"run --field-pose {o.field_pose}: {src}")
-    pipe = Pipeline(b, plan.cameras if plan.multi else cam_name, lidar_name if has_clouds else None, cfg)
+    pipe = Pipeline(b, plan.cameras if plan.multi else plan.camera, plan.lidar if plan.has_clouds else None, cfg)
     if o.detector is None and (o.armour is not None or o.number is not None):
         raise InputError("--armour" if o.armour is not None else "--number", "needs --detector (the robot detector)")
-    tick_detect = None
+    tick_detect = camera_health = recorder = None
     if plan.multi:
         detect, frames, cloud_src, tick_detect = _multi_sources(plan, log)
-        camera_health = recorder = None
     else:
-        if lidar_only:
-            detect = lambda f: []  # noqa: E731
-        elif o.detector is not None:
-            detect = open_detector(o, log)
-        else:
-            det_path = o.detections or (rep.detections if rep else None)
-            if det_path is None:
-                raise InputError("radarcal run", "no detector: give --detector model.onnx or --detections FILE (or a replay with detections.jsonl)")
-            dfile = DetectionsFile.read(det_path)
-            detect = lambda f: dfile.lookup(f.t, f.name)  # noqa: E731
-        recorder = camera_health = None
-        video = o.video[0] if o.video else None
-        if rep is not None:
-            frames = rep.camera_frames(need_pixels=o.detector is not None and not lidar_only)
-            cloud_src = rep.cloud_frames() if has_clouds else None
-        elif video is None:  # --clouds alone: one frame per cloud
-            cloud_src = open_clouds(o.clouds[0], o.cloud_topic)
-            frames = None
-        else:
-            from radarcal.runtime.replay import paced_video, start_recording
-
-            frames = paced_video(video) if o.realtime_video else open_camera(video)
-            camera_health = getattr(frames, "snapshot", None)
-            recorder = start_recording(o.record, b, cam_name, video, o.clouds) if o.record is not None else None
-            cloud_src = _live_clouds(plan, recorder)
-        if o.detector is not None and frames is not None and not lidar_only:  # decode ahead in a thread (live sources: newest frame only)
-            live = video is not None and (video.isdigit() or "://" in video)
-            frames = prefetch_frames(frames, latest_only=live)
-            if o.detect_ahead:
-                frames = detect.frames(frames)
-        if rep is None and recorder is not None:
-            from radarcal.runtime.replay import recorded
-
-            frames = recorded(frames, recorder, cam_name)
-    link = None
-    if o.serial:
-        from radarcal.runtime.serial_link import SerialLink
-
-        factory = None
-        if rep is None and recorder is not None:
-            from radarcal.runtime.replay import tapped_serial
-
-            factory = tapped_serial(recorder)
-        link = SerialLink(o.serial, season=cfg.season, serial_factory=factory).start()
-    from radarcal.runtime.marking import Marking
-
+        detect, frames, cloud_src, camera_health, recorder = _single_sources(plan, log)
+    link = _open_link(plan, recorder)
     marking = Marking(cfg, field_length_m=pipe.field_model.size[0] if pipe.field_model is not None else 28.0) if link is not None else None
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
     pairs = merge_by_time(frames, cloud_src, o.cloud_offset) if frames is not None else cloud_frames_as_pairs(cloud_src, o.cloud_offset if isinstance(o.cloud_offset, float) else 0.0)
     on_frame, console = evaluator, None
     if o.ui is not None or o.speed:
-        from radarcal.runtime.console.live import chain_callbacks, paced, start_console
-
-        pairs = paced(pairs, o.speed if o.speed is not None else 1.0) if rep is not None else pairs
-        if o.ui is not None:
-            console = start_console(o.ui, pipe, b, cam_name, lidar_name if has_clouds else None, {"camera": cam_name, "team": cfg.team, "hero_range_offset_m": cfg.hero_range_offset_m})
-            pairs, detect, on_frame = console.observe_pairs(pairs), console.observe_detect(detect), chain_callbacks(evaluator, console.on_frame)
-            if marking is not None:
-                console.on_action("double_vulnerability", marking.operator_dv)
-            for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None)),
-                              ("drift", getattr(pipe, "drift", None) and pipe.drift.snapshot)):
-                if callable(src):
-                    console.add_health(name, src)
+        pairs, detect, on_frame, console = _pace_and_console(plan, pipe, pairs, detect, evaluator, link, cloud_src, marking)
     rec_manifest = None
     try:
         def sensors_health() -> dict:
             h = dict(cloud_src.sensors_health()) if hasattr(cloud_src, "sensors_health") else {}
             if camera_health is not None:
-                h[cam_name] = camera_health()
+                h[plan.camera] = camera_health()
             return h
 
         parts = []
@@ -280,16 +223,101 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
             from radarcal.runtime.replay import finish_recording
 
             rec_manifest = finish_recording(recorder, cloud_src, o.serial)
+    return _finish_summary(summary, plan, cloud_src, evaluator, tick_detect, link, console, rec_manifest)
+
+
+def _single_sources(plan: RunPlan, log: Callable):
+    """One camera (or none): (detect, frames, cloud source, camera health or None, recorder or None)."""
+    from radarcal.runtime.detector import DetectionsFile
+    from radarcal.runtime.sources import open_camera, open_clouds, prefetch_frames
+
+    o, rep = plan.opts, plan.rep
+    if plan.lidar_only:
+        detect = lambda f: []  # noqa: E731
+    elif o.detector is not None:
+        detect = open_detector(o, log)
+    else:
+        det_path = o.detections or (rep.detections if rep else None)
+        if det_path is None:
+            raise InputError("radarcal run", "no detector: give --detector model.onnx or --detections FILE (or a replay with detections.jsonl)")
+        dfile = DetectionsFile.read(det_path)
+        detect = lambda f: dfile.lookup(f.t, f.name)  # noqa: E731
+    recorder = camera_health = None
+    video = o.video[0] if o.video else None
+    if rep is not None:
+        frames = rep.camera_frames(need_pixels=o.detector is not None and not plan.lidar_only)
+        cloud_src = rep.cloud_frames() if plan.has_clouds else None
+    elif video is None:  # --clouds alone: one frame per cloud
+        cloud_src = open_clouds(o.clouds[0], o.cloud_topic)
+        frames = None
+    else:
+        from radarcal.runtime.replay import paced_video, start_recording
+
+        frames = paced_video(video) if o.realtime_video else open_camera(video)
+        camera_health = getattr(frames, "snapshot", None)
+        recorder = start_recording(o.record, plan.bundle, plan.camera, video, o.clouds) if o.record is not None else None
+        cloud_src = _live_clouds(plan, recorder)
+    if o.detector is not None and frames is not None and not plan.lidar_only:  # decode ahead in a thread (live sources: newest frame only)
+        live = video is not None and (video.isdigit() or "://" in video)
+        frames = prefetch_frames(frames, latest_only=live)
+        if o.detect_ahead:
+            frames = detect.frames(frames)
+    if rep is None and recorder is not None:
+        from radarcal.runtime.replay import recorded
+
+        frames = recorded(frames, recorder, plan.camera)
+    return detect, frames, cloud_src, camera_health, recorder
+
+
+def _open_link(plan: RunPlan, recorder):
+    """The referee serial link (``--serial``), tapped into the recording when recording; None without ``--serial``."""
+    o = plan.opts
+    if not o.serial:
+        return None
+    from radarcal.runtime.serial_link import SerialLink
+
+    factory = None
+    if plan.rep is None and recorder is not None:
+        from radarcal.runtime.replay import tapped_serial
+
+        factory = tapped_serial(recorder)
+    return SerialLink(o.serial, season=plan.cfg.season, serial_factory=factory).start()
+
+
+def _pace_and_console(plan: RunPlan, pipe, pairs, detect, evaluator, link, cloud_src, marking):
+    """``--speed`` pacing of a replay and the ``--ui`` live console: (pairs, detect, on_frame, console or None)."""
+    from radarcal.runtime.console.live import chain_callbacks, paced, start_console
+
+    o, cfg = plan.opts, plan.cfg
+    pairs = paced(pairs, o.speed if o.speed is not None else 1.0) if plan.rep is not None else pairs
+    if o.ui is None:
+        return pairs, detect, evaluator, None
+    console = start_console(o.ui, pipe, plan.bundle, plan.camera, plan.lidar if plan.has_clouds else None,
+                            {"camera": plan.camera, "team": cfg.team, "hero_range_offset_m": cfg.hero_range_offset_m})  # fmt: skip
+    pairs, detect, on_frame = console.observe_pairs(pairs), console.observe_detect(detect), chain_callbacks(evaluator, console.on_frame)
+    if marking is not None:
+        console.on_action("double_vulnerability", marking.operator_dv)
+    for name, src in (("serial", link and link.snapshot), ("clouds", getattr(cloud_src, "health", None)),
+                      ("drift", getattr(pipe, "drift", None) and pipe.drift.snapshot)):  # fmt: skip
+        if callable(src):
+            console.add_health(name, src)
+    return pairs, detect, on_frame, console
+
+
+def _finish_summary(summary: dict, plan: RunPlan, cloud_src, evaluator, tick_detect, link, console, rec_manifest) -> dict:
+    """The loop's summary plus what the run knows: inputs skipped, accuracy, the link, the console, warnings."""
+    o, cfg = plan.opts, plan.cfg
     summary.pop("results")
-    if recorder is not None:
+    if rec_manifest is not None:
         summary["recording"] = {"out": str(o.record), "streams": rec_manifest["streams"], "dropped_camera_frames": rec_manifest["dropped_camera_frames"]}
     skipped = getattr(cloud_src, "skipped", None)
     summary["skipped_inputs"] = skipped.total if skipped is not None else 0
     summary["skipped_by_reason"] = dict(skipped.counts) if skipped is not None else {}
     if evaluator is not None:
         summary["accuracy"] = evaluator.summary()
-    summary.update({"localise": cfg.localise, "lidar_only": lidar_only, "bundle": str(plan.bundle_path), "camera": cam_name, "lidar": lidar_name if has_clouds else None,
-                    "out": str(o.out) if o.out else None, "minimap": str(o.minimap) if o.minimap else None, "team": cfg.team, "season": cfg.season})  # fmt: skip
+    summary.update({"localise": cfg.localise, "lidar_only": plan.lidar_only, "bundle": str(plan.bundle_path), "camera": plan.camera,
+                    "lidar": plan.lidar if plan.has_clouds else None, "out": str(o.out) if o.out else None,
+                    "minimap": str(o.minimap) if o.minimap else None, "team": cfg.team, "season": cfg.season})  # fmt: skip
     if plan.multi:
         summary["cameras"] = list(plan.cameras)
         summary["camera_missing_frames"] = dict(tick_detect.missing_ticks)

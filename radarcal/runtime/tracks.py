@@ -144,6 +144,7 @@ class Track3D:
     pending: tuple | None = None  # (xy, t) of a box fix that disagreed with a LiDAR-lost track
     origin: np.ndarray | None = None  # where the track started (a track that never moved may be background)
 
+    outranked_t: float = -np.inf  # frame time at which another entry of the same robot outranked it (LidarFirst.one_per_robot)
     ever_moved: bool = False
     MOVED_M = 1.0  # displacement from where the track started that counts as moving (clutter jitters by up to 0.5 m)
 

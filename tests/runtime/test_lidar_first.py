@@ -167,3 +167,34 @@ def test_is_background_grows_to_the_eight_horizontal_neighbours():
     assert not bg.is_background(bg.keys(far), 0.2).any()
     assert bg.is_background(bg.keys(near[4:5]), 0.2, grow=0).all() and not bg.is_background(bg.keys(near[:1]), 0.2, grow=0).any()
     assert not bg.is_background(bg.keys(near), 40.0).any()  # decayed below the threshold
+
+
+def test_one_measured_entry_per_robot():
+    """Known scene: blue_3 at (10, 5) seen by the LiDAR; a box-only track of blue_2 (whose box took blue_3's depth;
+    blue_2 really stands at (12.6, 5)) and an unlabelled split cluster on blue_3; red_1 touching blue_3 0.7 m away;
+    the aerial above blue_3. One measured entry on blue_3, the others untouched."""
+    from radarcal.runtime.lidar_first import LidarFirst
+
+    lf = LidarFirst(make_T(np.eye(3), SENSOR), FIELD)
+    tk, t = lf.tracker, 1.0
+    truth = {"blue_3": (10.0, 5.0), "blue_2": (12.6, 5.0), "red_1": (10.7, 5.0)}
+
+    def track(xy, label, seen_by, aerial=False):
+        tr = tk._new(np.array(xy), 0.05, t, 0.0, seen_by)
+        tr.label, tr.aerial, tr.state, tr.votes = label, aerial, CONFIRMED, ({label: 5.0} if label else {})
+        tr.t_lidar, tr.t_box = (t, -np.inf) if seen_by == "lidar" else (-np.inf, t)
+        return tr
+
+    b3, b2, split = track(truth["blue_3"], "blue_3", "lidar"), track((10.3, 5.05), "blue_2", "depth"), track((10.1, 5.2), None, "lidar")
+    r1, air = track(truth["red_1"], "red_1", "lidar"), track((10.0, 5.0), "red_6", "lidar", aerial=True)
+    out = lf.one_per_robot(list(tk.tracks), t)
+    assert [tr.id for tr in out] == [tr.id for tr in tk.tracks]  # nothing dropped: the weaker ones are flagged
+    src = {tr.id: lf.seen_source(tr, t) for tr in out}
+    assert src == {b3.id: "lidar", b2.id: "predicted", split.id: "predicted", r1.id: "lidar", air.id: "lidar"}
+    measured = [tr for tr in out if lf.seen_source(tr, t) != "predicted" and not tr.aerial]
+    for lab, p in truth.items():  # every measured ground entry is on its own robot, at most one per robot
+        near = [tr for tr in measured if np.linalg.norm(tr.x[:2] - p) < 0.3]
+        assert len(near) <= 1 and all(tr.label == lab for tr in near)
+    assert lf.seen_source(b2, t + 0.033) == "depth"  # the next frame it is ranked again (no lasting state)
+    lf.cfg.exclusion_m = 0.0
+    assert [tr.id for tr in lf.one_per_robot(list(tk.tracks), t + 0.033)] == [tr.id for tr in tk.tracks]

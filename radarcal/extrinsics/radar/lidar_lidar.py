@@ -181,8 +181,8 @@ def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.nd
     residual variances (plane residuals at their robust RMS but at least ``plane_sigma_floor``: neighbouring
     correspondences are not independent and two samplings of a surface differ by more than the range noise;
     reflectors at ``reflector_sigma`` or their RMS if larger), from which the worst-observed rotation axis and translation direction are reported.
-    Long (~100 lines): the iterations (correspondences, reflector pairs re-matched under the current estimate,
-    weights, the update) and the covariance after them use the same residual blocks and weights."""
+    Each Gauss-Newton pass: :func:`_plane_information`, :func:`_reflector_pairs`, :func:`_add_reflector_information`,
+    :func:`_step`."""
     from scipy.spatial import cKDTree
 
     src = _voxel_first(np.asarray(source, float).reshape(-1, 3), voxel)
@@ -192,86 +192,109 @@ def refine_with_reflectors(source: np.ndarray, target: np.ndarray, T_init: np.nd
     tgt_normals, tgt_planar = _normals(tgt, tree)  # the target's local planes, once
     T = np.asarray(T_init, float).copy()
     pairs_out = []
-
-    def reflector_pairs(T):
-        out = []
-        if not src_reflectors or not tgt_reflectors:
-            return out
-        for si, (a, b) in enumerate(zip(src_reflectors, tgt_reflectors)):
-            a = np.asarray(a, float).reshape(-1, 3)
-            b = np.asarray(b, float).reshape(-1, 3)
-            if len(a) == 0 or len(b) == 0:
-                continue
-            pa = geometry.transform_points(T, a)
-            d = np.linalg.norm(pa[:, None] - b[None], axis=2)
-            ja, ib = d.argmin(axis=1), d.argmin(axis=0)
-            for i in range(len(a)):
-                j = ja[i]
-                if ib[j] == i and d[i, j] < reflector_gate:
-                    out.append((si, i, int(j), a[i], b[j]))
-        return out
-
     s_plane = max_corr / 3
     final = False  # the last pass only evaluates the information at the solution (reflectors at their own RMS)
     for _it in range(iterations + 1):  # Gauss-Newton (few iterations), each vectorised over the points
         final = final or _it == iterations
-        c = T[:3, 3]
-        ps = geometry.transform_points(T, src)
-        dist, nb = tree.query(ps, distance_upper_bound=max_corr)
-        ok = np.isfinite(dist)
-        idx = nb[ok]
-        n, planar = tgt_normals[idx], tgt_planar[idx]
-        good = planar > 0.3
-        p_ok, q_ok, n = ps[ok][good], tgt[idx[good]], n[good]
-        r = np.sum(n * (p_ok - q_ok), axis=1)
-        s_plane = max(1.4826 * float(np.median(np.abs(r))), plane_sigma_floor) if len(r) else s_plane
-        w = np.minimum(1.0, 2.0 * s_plane / np.maximum(np.abs(r), 1e-12))  # Huber
-        J = np.concatenate([np.cross(p_ok - c, n), n], axis=1)
-        H = (J * (w / s_plane**2)[:, None]).T @ J
-        g = (J * (w * r / s_plane**2)[:, None]).sum(axis=0)
-        rp = reflector_pairs(T)
-        s_ref = reflector_sigma
+        H, g, s_plane, n_plane = _plane_information(T, src, tgt, tree, tgt_normals, tgt_planar, max_corr, s_plane, plane_sigma_floor)
+        rp = _reflector_pairs(T, src_reflectors, tgt_reflectors, reflector_gate)
         if rp:
-            A = np.array([x[3] for x in rp])
-            B = np.array([x[4] for x in rp])
-            pa = geometry.transform_points(T, A)
-            e = pa - B
-            s_ref = max(reflector_sigma, float(np.sqrt(np.mean(e**2)))) if final and len(rp) > 2 else reflector_sigma
-            for k in range(len(rp)):  # few reflectors
-                Jr = np.concatenate([-_skew(pa[k] - c), np.eye(3)], axis=1)
-                H += Jr.T @ Jr / s_ref**2
-                g += Jr.T @ e[k] / s_ref**2
+            _add_reflector_information(H, g, T, rp, reflector_sigma, final)
         if final:
             break
         try:
             delta = -np.linalg.solve(H + 1e-9 * np.eye(6) * max(np.trace(H), 1.0), g)
         except np.linalg.LinAlgError:
             break
-        # step limited along poorly observed directions (they stay where GICP put them)
-        dR = geometry.rotvec_to_R(delta[:3])
-        T_new = np.eye(4)
-        T_new[:3, :3] = dR @ T[:3, :3]
-        T_new[:3, 3] = dR @ (T[:3, 3] - c) + c + delta[3:]
-        T = T_new
+        T = _step(T, delta)
         if np.linalg.norm(delta[:3]) < 1e-7 and np.linalg.norm(delta[3:]) < 1e-6:
             final = True
     try:
         cov = np.linalg.inv(H)
     except np.linalg.LinAlgError:
         cov = np.full((6, 6), np.inf)
-    rp = reflector_pairs(T)
+    rp = _reflector_pairs(T, src_reflectors, tgt_reflectors, reflector_gate)
     if rp:
         e = np.linalg.norm(geometry.transform_points(T, np.array([x[3] for x in rp])) - np.array([x[4] for x in rp]), axis=1)
         pairs_out = [(x[0], x[1], x[2], float(ei)) for x, ei in zip(rp, e)]
     ref_rms = float(np.sqrt(np.mean([p[3] ** 2 for p in pairs_out]))) if pairs_out else float("nan")
-
-    def worst(block):
-        ev, vec = np.linalg.eigh(block)
-        return float(np.sqrt(max(ev[-1], 0.0))), vec[:, -1] * np.sign(vec[np.argmax(np.abs(vec[:, -1])), -1])
-
-    sr, st = worst(cov[:3, :3]), worst(cov[3:, 3:])
+    sr, st = _worst_direction(cov[:3, :3]), _worst_direction(cov[3:, 3:])
     return LidarRefinement(T, cov, np.degrees(np.sqrt(np.maximum(np.diag(cov)[:3], 0))), np.sqrt(np.maximum(np.diag(cov)[3:], 0)),
-                           (float(np.degrees(sr[0])), sr[1]), st, len(r), len(rp), float(s_plane), ref_rms, pairs_out)
+                           (float(np.degrees(sr[0])), sr[1]), st, n_plane, len(rp), float(s_plane), ref_rms, pairs_out)
+
+
+def _reflector_pairs(T, src_reflectors, tgt_reflectors, gate) -> list:
+    """Mutual nearest-neighbour reflector pairs within ``gate`` under ``T`` (source -> target), per scene:
+    (scene, source index, target index, source apex, target apex)."""
+    out = []
+    if not src_reflectors or not tgt_reflectors:
+        return out
+    for si, (a, b) in enumerate(zip(src_reflectors, tgt_reflectors)):
+        a = np.asarray(a, float).reshape(-1, 3)
+        b = np.asarray(b, float).reshape(-1, 3)
+        if len(a) == 0 or len(b) == 0:
+            continue
+        pa = geometry.transform_points(T, a)
+        d = np.linalg.norm(pa[:, None] - b[None], axis=2)
+        ja, ib = d.argmin(axis=1), d.argmin(axis=0)
+        for i in range(len(a)):
+            j = ja[i]
+            if ib[j] == i and d[i, j] < gate:
+                out.append((si, i, int(j), a[i], b[j]))
+    return out
+
+
+def _plane_information(T, src, tgt, tree, tgt_normals, tgt_planar, max_corr, s_plane, plane_sigma_floor):
+    """Point-to-plane normal equations under ``T``: source points against their target neighbour's local plane
+    (planar ones within ``max_corr``), Huber-weighted at the robust RMS (at least ``plane_sigma_floor``; the previous
+    ``s_plane`` when nothing matches). Parameters: rotation about the current translation, then translation.
+    Returns (H (6,6), g (6,), s_plane, residual count)."""
+    c = T[:3, 3]
+    ps = geometry.transform_points(T, src)
+    dist, nb = tree.query(ps, distance_upper_bound=max_corr)
+    ok = np.isfinite(dist)
+    idx = nb[ok]
+    n, planar = tgt_normals[idx], tgt_planar[idx]
+    good = planar > 0.3
+    p_ok, q_ok, n = ps[ok][good], tgt[idx[good]], n[good]
+    r = np.sum(n * (p_ok - q_ok), axis=1)
+    s_plane = max(1.4826 * float(np.median(np.abs(r))), plane_sigma_floor) if len(r) else s_plane
+    w = np.minimum(1.0, 2.0 * s_plane / np.maximum(np.abs(r), 1e-12))  # Huber
+    J = np.concatenate([np.cross(p_ok - c, n), n], axis=1)
+    H = (J * (w / s_plane**2)[:, None]).T @ J
+    g = (J * (w * r / s_plane**2)[:, None]).sum(axis=0)
+    return H, g, s_plane, len(r)
+
+
+def _add_reflector_information(H, g, T, rp, reflector_sigma, final) -> None:
+    """Add the reflector pairs' point constraints to ``H`` / ``g`` in place, at ``reflector_sigma`` (on the final
+    pass with more than two pairs: their RMS if larger)."""
+    c = T[:3, 3]
+    A = np.array([x[3] for x in rp])
+    B = np.array([x[4] for x in rp])
+    pa = geometry.transform_points(T, A)
+    e = pa - B
+    s_ref = max(reflector_sigma, float(np.sqrt(np.mean(e**2)))) if final and len(rp) > 2 else reflector_sigma
+    for k in range(len(rp)):  # few reflectors
+        Jr = np.concatenate([-_skew(pa[k] - c), np.eye(3)], axis=1)
+        H += Jr.T @ Jr / s_ref**2
+        g += Jr.T @ e[k] / s_ref**2
+
+
+def _step(T, delta) -> np.ndarray:
+    """``T`` updated by ``delta`` (rotation vector about T's translation, then translation)."""
+    c = T[:3, 3]
+    dR = geometry.rotvec_to_R(delta[:3])
+    T_new = np.eye(4)
+    T_new[:3, :3] = dR @ T[:3, :3]
+    T_new[:3, 3] = dR @ (T[:3, 3] - c) + c + delta[3:]
+    return T_new
+
+
+def _worst_direction(block):
+    """Largest 1-sigma of a 3x3 covariance block and its axis (sign fixed: largest component positive)."""
+    ev, vec = np.linalg.eigh(block)
+    return float(np.sqrt(max(ev[-1], 0.0))), vec[:, -1] * np.sign(vec[np.argmax(np.abs(vec[:, -1])), -1])
 
 
 def _skew(v: np.ndarray) -> np.ndarray:

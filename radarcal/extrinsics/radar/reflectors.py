@@ -223,59 +223,23 @@ def extract_reflectors(
     inten = None if intensity is None else np.asarray(intensity, float).reshape(-1)
     ground_lum = float(np.median(inten[~keep])) if inten is not None and (~keep).any() else None
     qi = None if inten is None else inten[keep]
-    heads = []  # (centre, idx of head points, reason or None)
+    heads = []  # (centre, idx of head points)
     rejected = []
-    if len(q):
-        pairs = cKDTree(q).query_pairs(cluster_tol, output_type="ndarray")
-        from scipy.sparse import coo_matrix
-
-        adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(q), len(q)))
-        ncomp, labels = connected_components(adj, directed=False)
-        order = np.argsort(labels, kind="stable")
-        bounds = np.searchsorted(labels[order], np.arange(ncomp + 1))
-        for c in range(ncomp):  # loop over clusters (tens), each vectorised
-            idx = order[bounds[c]:bounds[c + 1]]
-            if len(idx) < min_points:
-                continue
-            hi = idx[hq[idx] >= hq[idx].max() - head_size]
-            centre = q[hi].mean(axis=0)
-            cg = qg[hi].mean(axis=0)
-            if np.linalg.norm(cg[:2]) > range_gate:
-                rejected.append((centre, f"farther than the {range_gate:g} m range gate"))
-                continue
-            ext = np.ptp(qg[idx][:, :2], axis=0).max()
-            ext_head = np.ptp(qg[hi], axis=0).max()
-            if ext > max_extent and (edge is None or ext_head > 3 * edge):
-                rejected.append((centre, f"{ext:.2f} m wide (> {max_extent:g} m): not a reflector"))
-                continue
-            if edge is not None and ext_head > 3 * edge:
-                rejected.append((centre, f"head {ext_head:.2f} m across (> 3 reflector edges): not a reflector"))
-                continue
-            lin = linear_fraction(q[hi])
-            if lin > 0.6:
-                rejected.append((centre, f"line-like ({100 * lin:.0f} % of its points on lines): a tripod leg, pole or wire"))
-                continue
+    for idx in _clusters(q, cluster_tol, min_points):
+        hi = idx[hq[idx] >= hq[idx].max() - head_size]
+        centre = q[hi].mean(axis=0)
+        why = _head_rejection(q, qg, idx, hi, range_gate, max_extent, edge)
+        if why is not None:
+            rejected.append((centre, why))
+        else:
             heads.append((centre, hi))
-    bright = None
-    if qi is not None and ground_lum is not None and heads:
-        lum = np.array([np.median(qi[hi]) for _, hi in heads])
-        bright = lum > 1.5 * max(ground_lum, 1e-6)
-        if not bright.any():
-            bright = None  # no bright cluster at all: intensity says nothing here
+    bright = _bright_heads(qi, ground_lum, heads)
     centres, heights, npts, method, bores, prms = [], [], [], [], [], []
     for k, (centre, hi) in enumerate(heads):
         if bright is not None and not bright[k]:
             rejected.append((centre, f"dull (median intensity {np.median(qi[hi]):.3g} vs ground {ground_lum:.3g}): not a metal reflector"))
             continue
-        fit = fit_trihedral(q[hi], edge=edge)
-        if fit is not None:
-            # with the plate centroid's offset known, the centroid moved back along the fitted boresight is less noisy
-            # than the plates' intersection (the orientation is good to ~1 deg: ~2 mm at a 0.1 m offset)
-            apex = centre - offset * fit.boresight if offset else fit.apex
-            how, bore, rms = "plates", fit.boresight, fit.rms
-        else:
-            apex = centre + offset * centre / np.linalg.norm(centre) if offset else centre
-            how, bore, rms = "offset", np.full(3, np.nan), float("nan")
+        apex, how, bore, rms = _head_apex(q[hi], centre, edge, offset)
         centres.append(apex)
         heights.append(float(ground.height(apex[None])[0]))
         npts.append(len(hi))
@@ -284,6 +248,67 @@ def extract_reflectors(
         prms.append(rms)
     return ReflectorExtraction(np.array(centres).reshape(-1, 3), np.array(heights), np.array(npts, int), ground, rejected, method,
                                np.array(bores).reshape(-1, 3), np.array(prms))
+
+
+def _clusters(q: np.ndarray, cluster_tol: float, min_points: int) -> list[np.ndarray]:
+    """Euclidean clusters of ``q`` (points closer than ``cluster_tol`` linked): index arrays of those with at least
+    ``min_points`` points, in label order."""
+    if not len(q):
+        return []
+    from scipy.sparse import coo_matrix
+
+    pairs = cKDTree(q).query_pairs(cluster_tol, output_type="ndarray")
+    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(q), len(q)))
+    ncomp, labels = connected_components(adj, directed=False)
+    order = np.argsort(labels, kind="stable")
+    bounds = np.searchsorted(labels[order], np.arange(ncomp + 1))
+    out = []
+    for c in range(ncomp):  # loop over clusters (tens)
+        idx = order[bounds[c]:bounds[c + 1]]
+        if len(idx) >= min_points:
+            out.append(idx)
+    return out
+
+
+def _head_rejection(q, qg, idx, hi, range_gate, max_extent, edge) -> str | None:
+    """Why cluster ``idx`` (head points ``hi``; ``qg`` in the ground frame) is not a reflector, or None: beyond the
+    range gate, too wide, a head more than 3 edges across, or line-like."""
+    cg = qg[hi].mean(axis=0)
+    if np.linalg.norm(cg[:2]) > range_gate:
+        return f"farther than the {range_gate:g} m range gate"
+    ext = np.ptp(qg[idx][:, :2], axis=0).max()
+    ext_head = np.ptp(qg[hi], axis=0).max()
+    if ext > max_extent and (edge is None or ext_head > 3 * edge):
+        return f"{ext:.2f} m wide (> {max_extent:g} m): not a reflector"
+    if edge is not None and ext_head > 3 * edge:
+        return f"head {ext_head:.2f} m across (> 3 reflector edges): not a reflector"
+    lin = linear_fraction(q[hi])
+    if lin > 0.6:
+        return f"line-like ({100 * lin:.0f} % of its points on lines): a tripod leg, pole or wire"
+    return None
+
+
+def _bright_heads(qi, ground_lum, heads) -> np.ndarray | None:
+    """Per head: median intensity above 1.5x the ground's; None when intensity is unknown or no head is bright
+    (then intensity says nothing here)."""
+    if qi is None or ground_lum is None or not heads:
+        return None
+    lum = np.array([np.median(qi[hi]) for _, hi in heads])
+    bright = lum > 1.5 * max(ground_lum, 1e-6)
+    return bright if bright.any() else None
+
+
+def _head_apex(head: np.ndarray, centre: np.ndarray, edge, offset: float):
+    """A head's apex (LiDAR frame): from its three fitted plates, else its centroid moved by ``offset`` along the
+    viewing ray. Returns (apex, method, boresight or NaN, plate RMS or NaN)."""
+    fit = fit_trihedral(head, edge=edge)
+    if fit is not None:
+        # with the plate centroid's offset known, the centroid moved back along the fitted boresight is less noisy
+        # than the plates' intersection (the orientation is good to ~1 deg: ~2 mm at a 0.1 m offset)
+        apex = centre - offset * fit.boresight if offset else fit.apex
+        return apex, "plates", fit.boresight, fit.rms
+    apex = centre + offset * centre / np.linalg.norm(centre) if offset else centre
+    return apex, "offset", np.full(3, np.nan), float("nan")
 
 
 def board_reflector_centres(circles: np.ndarray, offset: float = 0.105) -> np.ndarray:

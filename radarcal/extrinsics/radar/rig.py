@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -135,6 +136,50 @@ def rcs_weights(rcs: np.ndarray, floor: float = 1e-3) -> np.ndarray:
     return np.clip(w, floor, 1.0)
 
 
+class _Matched(NamedTuple):
+    """One radar's LiDAR-matched detections after the per-radar fit (ground-frame xy ``src`` / height ``z``, radar
+    measurement ``dst``), with the inlier mask, rejections, fit keywords, weights and RCS of each match."""
+
+    src: np.ndarray  # (N,2) reflector xy in G
+    dst: np.ndarray  # (N,2) radar detection (radar frame)
+    z: np.ndarray  # (N,) reflector height in G
+    info: list  # (scene, lidar index, radar index) per match
+    keep: np.ndarray  # (N,) bool, inliers
+    rejected: list  # (match index, reason)
+    fit_kw: dict  # height keywords of fit_rigid_2d
+    weights: np.ndarray  # (N,) relative inverse variances
+    rcs: np.ndarray  # (N,) dBsm, NaN when unknown
+
+
+@dataclass
+class _Rig:
+    """What the steps of :func:`calibrate_rig` share: the scenes in the ground frame G and the radars' heights."""
+
+    scenes: Sequence[SceneObs]
+    radar_names: list
+    reference: str
+    slant: bool
+    gate: float
+    ground: GroundPlane | None
+    T_lidar_G: np.ndarray
+    lidar_G: list  # per scene (K,3) reflector centres in G
+    z_nominal: float  # median reflector height in G (m)
+    init_G: dict  # radar -> Pose2 T_G_radar from init_T_lidar_radar
+    heights: dict  # radar -> mounting height above ground (m) or None (estimated)
+    h_guess: float  # starting height of a radar without one
+    notes: list
+
+    def deslant(self, name: str, m) -> np.ndarray:
+        """Radar ``name``'s detections (its frame) as in-plane positions at the reflectors' nominal height."""
+        if not self.slant or (self.heights[name] is None and self.ground is None):
+            return np.asarray(m, float).reshape(-1, 2)  # unknown plane height: match on the raw (slant) positions
+        h = self.heights[name] if self.heights[name] is not None else self.h_guess
+        return deslant(m, self.z_nominal - h)
+
+    def detections(self, sc: SceneObs, name: str) -> np.ndarray:
+        return self.deslant(name, sc.radar_xy.get(name, np.zeros((0, 2))))
+
+
 def calibrate_rig(
     scenes: Sequence[SceneObs],
     radar_names: Sequence[str],
@@ -156,18 +201,34 @@ def calibrate_rig(
     centres' z dropped in the LiDAR frame, no slant). ``mount_heights``: radar scanning-plane height above the ground
     (m); a radar without one gets it estimated (slant model). ``init_T_lidar_radar``: optional nominal poses (used to
     pick correspondences; without them RANSAC over pairs decides).
-    Long (~200 lines) on purpose: the patent's steps in order (ground frame, radar<->radar, A/B/C filter,
-    LiDAR<->reference radar, per-radar slant fit with outliers, joint refinement, results), each a commented block
-    over the same few arrays (``lidar_G``, ``pose_G``, ``heights``, ``notes``); the numeric work is in the functions
-    they call. Reading it top to bottom is reading the method.
+    The steps, in the patent's order, are the private functions below (ground frame, radar<->radar, A/B/C filter,
+    LiDAR<->reference radar, per-radar slant fit with outliers, joint refinement, results).
     """
-    notes: list[str] = []
     if not scenes:
         raise ValueError("no scenes")
+    rig = _rig_in_ground_frame(scenes, radar_names, mount_heights, reference, init_T_lidar_radar, model, gate, ground)
+    pose_ref, radar_radar = _radar_radar(rig)
+    filter_counts, merged = _filter_scenes(rig, pose_ref, forward, lateral)
+    patent_G = _lidar_reference_radar(rig, pose_ref, merged)
+    pose_G = _start_poses(rig, patent_G)
+    fits, matched = _fit_radars(rig, pose_G, outlier_threshold)
+    joint_info = {"enabled": bool(joint), "free_points": 0, "n_obs": 0}
+    if joint and len(fits) >= 2:
+        in_region = _radar_only_region(pose_G, rig.reference, forward, lateral, lidar_range_gate)
+        pose_G, rig.heights, joint_info = _joint_refine(scenes, rig.lidar_G, pose_G, rig.heights, fits, matched, rig.slant, gate, rig.z_nominal,
+                                                        in_region)
+    results = {r: _radar_result(rig, r, matched[r], pose_G, bool(joint_info.get("free_points")), radar_radar, patent_G) for r in fits}
+    allxy = np.concatenate([np.asarray(v, float).reshape(-1, 2) for s in scenes for v in (s.raw_radar_xy or s.radar_xy).values()]) if scenes else np.zeros((0, 2))
+    return RigCalibration(rig.T_lidar_G, results, filter_counts, radar_radar, joint_info, quantisation_report(allxy), model, rig.notes)
+
+
+def _rig_in_ground_frame(scenes, radar_names, mount_heights, reference, init_T_lidar_radar, model, gate, ground) -> _Rig:
+    """Ground frame G (mean of the scenes' ground planes unless ``ground`` is given; identity for the planar model),
+    the LiDAR reflectors and the initial poses in it, the radars' heights and the starting height of unknown ones."""
+    notes: list[str] = []
     radar_names = list(radar_names)
     reference = reference or (radar_names[len(radar_names) // 2])
     slant = model == "slant"
-    # --- ground frame -------------------------------------------------------------------------------------------
     if model == "planar":
         T_lidar_G = np.eye(4)
     else:
@@ -191,30 +252,27 @@ def calibrate_rig(
     for r in radar_names:
         if slant and heights[r] is None:
             notes.append(f"{r}: no mounting height given: estimated from the slant model (only |dz| is observable)")
-
     # unknown height: start below the reflectors (bumper height); dz = 0 is a stationary point of the slant model
     h_guess = 0.5 if abs(z_nominal - 0.5) > 0.15 else z_nominal - 0.4
     if slant and ground is None:  # heights are LiDAR z: no bumper height to start from; 0.4 m below the reflectors
         h_guess = z_nominal - 0.4
+    return _Rig(scenes, radar_names, reference, slant, gate, ground, T_lidar_G, lidar_G, z_nominal, init_G, heights, h_guess, notes)
 
-    def _desl(name, m):
-        if not slant or (heights[name] is None and ground is None):
-            return np.asarray(m, float).reshape(-1, 2)  # unknown plane height: match on the raw (slant) positions
-        h = heights[name] if heights[name] is not None else h_guess
-        return deslant(m, z_nominal - h)
 
-    # --- step 2: radar <-> radar (theta1, a1, b1): each radar into the reference radar ---------------------------
+def _radar_radar(rig: _Rig) -> tuple[dict, dict]:
+    """Patent step 2: each radar into the reference radar, (theta1, a1, b1) from their common reflectors. Returns the
+    poses (radar -> reference) of the linked radars and the per-radar fit summary."""
     radar_radar: dict[str, dict] = {}
-    pose_ref: dict[str, Pose2] = {reference: Pose2(0.0, np.zeros(2))}
-    for r in radar_names:
-        if r == reference:
+    pose_ref: dict[str, Pose2] = {rig.reference: Pose2(0.0, np.zeros(2))}
+    for r in rig.radar_names:
+        if r == rig.reference:
             continue
         init = None
-        if reference in init_G and r in init_G:
-            init = init_G[reference].inverse().compose(init_G[r])
-        A_ = [_desl(r, sc.radar_xy.get(r, np.zeros((0, 2)))) for sc in scenes]
-        B_ = [_desl(reference, sc.radar_xy.get(reference, np.zeros((0, 2)))) for sc in scenes]
-        pairs_l, _ = robust_match_sets(A_, B_, init=init, gate=gate)
+        if rig.reference in rig.init_G and r in rig.init_G:
+            init = rig.init_G[rig.reference].inverse().compose(rig.init_G[r])
+        A_ = [rig.detections(sc, r) for sc in rig.scenes]
+        B_ = [rig.detections(sc, rig.reference) for sc in rig.scenes]
+        pairs_l, _ = robust_match_sets(A_, B_, init=init, gate=rig.gate)
         src = [a[p[:, 0]] for a, p in zip(A_, pairs_l) if len(p)]
         dst = [b[p[:, 1]] for b, p in zip(B_, pairs_l) if len(p)]
         if src and sum(len(s) for s in src) >= 2:
@@ -223,129 +281,163 @@ def calibrate_rig(
             pose_ref[r] = f.pose
             radar_radar[r] = {"pose_ref": f.pose, "rms": f.rms, "n": f.n, "sigma": f.sigma}
         else:
-            notes.append(f"{r}: no common reflectors with {reference}: calibrated against the LiDAR only")
-    # --- step 4: filter detections in the reference frame (A/B/C) -------------------------------------------------
+            rig.notes.append(f"{r}: no common reflectors with {rig.reference}: calibrated against the LiDAR only")
+    return pose_ref, radar_radar
+
+
+def _filter_scenes(rig: _Rig, pose_ref: dict, forward, lateral) -> tuple[dict, list]:
+    """Patent step 4: every scene's detections in the reference radar frame, filtered into sets A/B/C. Returns the
+    counts per scene and, per scene, (cluster means (K,2) in the reference frame, seen by >= 2 radars (K,))."""
     filter_counts = {}
-    merged = []  # per scene: (means (K,2) in ref frame, is_multi (K,))
-    for sc in scenes:
-        pts = [pose_ref[r].apply(_desl(r, sc.radar_xy.get(r, np.zeros((0, 2))))) if r in pose_ref else np.zeros((0, 2)) for r in radar_names]
-        fr = filter_detections(pts, forward, lateral, gate)
+    merged = []
+    for sc in rig.scenes:
+        pts = [pose_ref[r].apply(rig.detections(sc, r)) if r in pose_ref else np.zeros((0, 2)) for r in rig.radar_names]
+        fr = filter_detections(pts, forward, lateral, rig.gate)
         filter_counts[sc.name] = fr.counts()
         nb = int((fr.cluster_radars >= 2).sum())
         if nb < 2:
-            notes.append(f"scene {sc.name}: {nb} reflector(s) seen by two or more radars (set B): set A used for the LiDAR match")
+            rig.notes.append(f"scene {sc.name}: {nb} reflector(s) seen by two or more radars (set B): set A used for the LiDAR match")
         if len(fr.C) > len(fr.B):
-            notes.append(f"scene {sc.name}: more single-radar detections (C = {len(fr.C)}) than multi-radar ones (B = {len(fr.B)}): ghosts or radars that see too little")
+            rig.notes.append(f"scene {sc.name}: more single-radar detections (C = {len(fr.C)}) than multi-radar ones (B = {len(fr.B)}): ghosts or radars that see too little")
         merged.append((fr.cluster_means, fr.cluster_radars >= 2))
-    # --- step 5: LiDAR <-> reference radar (theta2, a2, b2) with B (+ C consistent with the LiDAR) ----------------
-    init_ref_G = init_G.get(reference)
-    b_sets = [means[multi] if multi.sum() >= 2 else means for means, multi in merged]  # patent: keep B; too few -> A
-    pairs_l, _ = robust_match_sets(b_sets, [p[:, :2] for p in lidar_G], init=init_ref_G, gate=gate)
+    return filter_counts, merged
+
+
+def _lidar_reference_radar(rig: _Rig, pose_ref: dict, merged: list) -> dict:
+    """Patent step 5: the reference radar into G, (theta2, a2, b2), from set B (set A when B has fewer than two),
+    chained to every linked radar. Returns radar -> Pose2 T_G_radar."""
+    b_sets = [means[multi] if multi.sum() >= 2 else means for means, multi in merged]
+    pairs_l, _ = robust_match_sets(b_sets, [p[:, :2] for p in rig.lidar_G], init=rig.init_G.get(rig.reference), gate=rig.gate)
     src = [b[p[:, 0]] for b, p in zip(b_sets, pairs_l) if len(p)]
-    dst = [g[p[:, 1], :2] for g, p in zip(lidar_G, pairs_l) if len(p)]
+    dst = [g[p[:, 1], :2] for g, p in zip(rig.lidar_G, pairs_l) if len(p)]
     if sum(len(x) for x in src) < 2:
         raise ValueError("fewer than 2 reflectors matched between the LiDAR and the radars")
     f_ref = fit_rigid_2d(np.concatenate(src), np.concatenate(dst))  # ref radar -> G
-    patent_G = {r: f_ref.pose.compose(pose_ref[r]) for r in pose_ref}
-    # --- per radar: final model fit (slant), robust re-matching, outliers -----------------------------------------
-    results: dict[str, RadarResult] = {}
+    return {r: f_ref.pose.compose(pose_ref[r]) for r in pose_ref}
+
+
+def _start_poses(rig: _Rig, patent_G: dict) -> dict:
+    """Starting T_G_radar of each radar for its own fit: the patent chain, or the initial guess where the chain is
+    far from it or missing; radars with neither are skipped (noted)."""
     pose_G = dict(patent_G)
-    for r in radar_names:
+    init_G = rig.init_G
+    for r in rig.radar_names:
         if r in pose_G and r in init_G:  # a patent chain far from the radar's own guess: a wrong match, start from the guess
             d_th = abs(float(_wrap(pose_G[r].theta - init_G[r].theta)))
             d_t = float(np.linalg.norm(pose_G[r].t - init_G[r].t))
             if d_th > np.radians(10.0) or d_t > 0.5:
-                notes.append(f"{r}: the radar-radar chain is {np.degrees(d_th):.1f} deg / {d_t:.2f} m from its initial_T_main: matched from the guess instead")
+                rig.notes.append(f"{r}: the radar-radar chain is {np.degrees(d_th):.1f} deg / {d_t:.2f} m from its initial_T_main: matched from the guess instead")
                 pose_G[r] = init_G[r]
         if r not in pose_G:
             if r in init_G:
                 pose_G[r] = init_G[r]
             else:
-                notes.append(f"{r}: no initial pose and no radar-radar link: skipped")
+                rig.notes.append(f"{r}: no initial pose and no radar-radar link: skipped")
                 continue
+    return pose_G
+
+
+def _fit_radars(rig: _Rig, pose_G: dict, outlier_threshold: float) -> tuple[dict, dict]:
+    """Every radar's own LiDAR-anchored fit (final model), updating ``pose_G`` and ``rig.heights`` in place.
+    Returns radar -> Fit2D (maps G -> radar) and radar -> :class:`_Matched`."""
     fits: dict[str, Fit2D] = {}
-    keepinfo: dict[str, tuple] = {}
+    matched: dict[str, _Matched] = {}
     for r in list(pose_G):
-        h = heights[r] if heights[r] is not None else h_guess
-        for _ in range(3):
-            s_, d_, z_, info, rc_, n_ = _obs_for_radar(scenes, lidar_G, r, pose_G[r], h, gate, slant)
-            if len(s_) < 2:
-                break
-            w_ = rcs_weights(rc_) * n_  # a mean of n frames counts n times
-            kw = _fit_kw(slant, heights[r], h)
-            keep, rej = reject_outliers(s_, d_, threshold=outlier_threshold, weights=w_, k_sigma=K_SIGMA, **({**kw, "src_z": z_} if slant else kw))
-            f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, weights=w_[keep], **kw)
-            # f maps G -> radar; pose_G is radar -> G
-            new = f.pose.inverse()
-            h = f.height if f.height is not None else h
-            converged = abs(_wrap(new.theta - pose_G[r].theta)) < 1e-10 and np.allclose(new.t, pose_G[r].t, atol=1e-9)
-            pose_G[r] = new
-            fits[r] = f
-            keepinfo[r] = (s_, d_, z_, info, keep, rej, kw, w_, rc_)
-            if converged:
-                break
+        _fit_one_radar(rig, r, pose_G, outlier_threshold, fits, matched)
         if r not in fits:
-            notes.append(f"{r}: fewer than 2 reflectors matched to the LiDAR: not calibrated")
-        if r in fits and heights[r] is None and slant:
-            # only |dz| is observable, but the slant model is not exactly symmetric: try the mirror height too
-            s_, d_, z_, info, keep, rej, kw, w_, rc_ = keepinfo[r]
-            zc = float(np.average(z_[keep], weights=w_[keep]))
-            g = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep], weights=w_[keep], estimate_height=True, height_init=2 * zc - fits[r].height)
-            if g.rms < fits[r].rms - 1e-9:
-                fits[r] = g
-                pose_G[r] = g.pose.inverse()
-            heights[r] = float(fits[r].height)
-    # --- joint refinement: all radars at once, radar-only reflectors as free 2D points ----------------------------
-    joint_info = {"enabled": bool(joint), "free_points": 0, "n_obs": 0}
-    if joint and len(fits) >= 2:
-        ref_inv = pose_G[reference].inverse() if reference in pose_G else Pose2(0.0, np.zeros(2))
+            rig.notes.append(f"{r}: fewer than 2 reflectors matched to the LiDAR: not calibrated")
+        if r in fits and rig.heights[r] is None and rig.slant:
+            _try_mirror_height(rig, r, pose_G, fits, matched[r])
+    return fits, matched
 
-        def in_region(p_G):
-            q = ref_inv.apply(p_G)
-            inside = (q[:, 0] > forward[0]) & (q[:, 0] < forward[1]) & (q[:, 1] > lateral[0]) & (q[:, 1] < lateral[1])
-            if lidar_range_gate is not None:  # inside the LiDAR's range gate a reflector would have a LiDAR cluster
-                inside &= np.linalg.norm(p_G, axis=1) > lidar_range_gate - 0.2
-            return inside
 
-        pose_G, heights, joint_info = _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate, z_nominal, in_region)
-    # --- results ------------------------------------------------------------------------------------------------
-    for r in fits:
-        s_, d_, z_, info, keep, rej, kw, w_, rc_ = keepinfo[r]
-        h = heights[r]
-        kw2 = _fit_kw(slant, h, h)
-        # LiDAR-anchored fit at the final height: sigma and leave-one-out; the pose is the joint one (same when no
-        # radar-only reflectors exist)
-        f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, init=pose_G[r].inverse(), weights=w_[keep], **kw2)
-        if not joint_info.get("free_points"):
+def _fit_one_radar(rig: _Rig, r: str, pose_G: dict, outlier_threshold: float, fits: dict, matched: dict) -> None:
+    """Re-match radar ``r`` to the LiDAR reflectors under its current pose, reject outliers, fit; up to three rounds
+    until the pose stops moving. Writes ``pose_G[r]``, ``fits[r]`` and ``matched[r]``."""
+    slant = rig.slant
+    h = rig.heights[r] if rig.heights[r] is not None else rig.h_guess
+    for _ in range(3):
+        s_, d_, z_, info, rc_, n_ = _obs_for_radar(rig.scenes, rig.lidar_G, r, pose_G[r], h, rig.gate, slant)
+        if len(s_) < 2:
+            break
+        w_ = rcs_weights(rc_) * n_  # a mean of n frames counts n times
+        kw = _fit_kw(slant, rig.heights[r], h)
+        keep, rej = reject_outliers(s_, d_, threshold=outlier_threshold, weights=w_, k_sigma=K_SIGMA, **({**kw, "src_z": z_} if slant else kw))
+        f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, weights=w_[keep], **kw)
+        # f maps G -> radar; pose_G is radar -> G
+        new = f.pose.inverse()
+        h = f.height if f.height is not None else h
+        converged = abs(_wrap(new.theta - pose_G[r].theta)) < 1e-10 and np.allclose(new.t, pose_G[r].t, atol=1e-9)
+        pose_G[r] = new
+        fits[r] = f
+        matched[r] = _Matched(s_, d_, z_, info, keep, rej, kw, w_, rc_)
+        if converged:
+            break
+
+
+def _try_mirror_height(rig: _Rig, r: str, pose_G: dict, fits: dict, m: _Matched) -> None:
+    """Estimated height: only |dz| is observable, but the slant model is not exactly symmetric: try the mirror height
+    too and keep the better fit; sets ``rig.heights[r]``."""
+    zc = float(np.average(m.z[m.keep], weights=m.weights[m.keep]))
+    g = fit_rigid_2d(m.src[m.keep], m.dst[m.keep], src_z=m.z[m.keep], weights=m.weights[m.keep], estimate_height=True, height_init=2 * zc - fits[r].height)
+    if g.rms < fits[r].rms - 1e-9:
+        fits[r] = g
+        pose_G[r] = g.pose.inverse()
+    rig.heights[r] = float(fits[r].height)
+
+
+def _radar_only_region(pose_G: dict, reference: str, forward, lateral, lidar_range_gate):
+    """Mask function over (N,2) points in G: inside the reference radar's forward/lateral region and, with a LiDAR
+    range gate, beyond it (inside the gate a reflector would have a LiDAR cluster)."""
+    ref_inv = pose_G[reference].inverse() if reference in pose_G else Pose2(0.0, np.zeros(2))
+
+    def in_region(p_G):
+        q = ref_inv.apply(p_G)
+        inside = (q[:, 0] > forward[0]) & (q[:, 0] < forward[1]) & (q[:, 1] > lateral[0]) & (q[:, 1] < lateral[1])
+        if lidar_range_gate is not None:
+            inside &= np.linalg.norm(p_G, axis=1) > lidar_range_gate - 0.2
+        return inside
+
+    return in_region
+
+
+def _radar_result(rig: _Rig, r: str, m: _Matched, pose_G: dict, had_free_points: bool, radar_radar: dict, patent_G: dict) -> RadarResult:
+    """Radar ``r``'s result: LiDAR-anchored fit at the final height (sigma, leave-one-out, per-reflector residuals);
+    the pose is the joint one unless it strays beyond 99 % (chi-square, 3 dof) of that fit. Writes ``pose_G[r]``."""
+    slant = rig.slant
+    s_, d_, z_, info, keep, rej, kw, w_, rc_ = m
+    h = rig.heights[r]
+    kw2 = _fit_kw(slant, h, h)
+    # the pose is the joint one (same when no radar-only reflectors exist)
+    f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, init=pose_G[r].inverse(), weights=w_[keep], **kw2)
+    if not had_free_points:
+        pose_G[r] = f.pose.inverse()
+    else:  # the joint pose must agree with the radar's own LiDAR-anchored fit (radar-only points can be wrong)
+        jp = pose_G[r].inverse()
+        dx = np.array([float(_wrap(jp.theta - f.pose.theta)), *(jp.t - f.pose.t)])
+        try:
+            d2 = float(dx @ np.linalg.solve(f.cov[:3, :3], dx))
+        except np.linalg.LinAlgError:
+            d2 = np.inf
+        if d2 > 11.34:  # chi-square, 3 dof, 99 %
+            rig.notes.append(f"{r}: the joint refinement moved it {np.sqrt(d2):.1f} sigma from its own LiDAR-anchored fit: that fit kept")
             pose_G[r] = f.pose.inverse()
-        else:  # the joint pose must agree with the radar's own LiDAR-anchored fit (radar-only points can be wrong)
-            jp = pose_G[r].inverse()
-            dx = np.array([float(_wrap(jp.theta - f.pose.theta)), *(jp.t - f.pose.t)])
-            try:
-                d2 = float(dx @ np.linalg.solve(f.cov[:3, :3], dx))
-            except np.linalg.LinAlgError:
-                d2 = np.inf
-            if d2 > 11.34:  # chi-square, 3 dof, 99 %
-                notes.append(f"{r}: the joint refinement moved it {np.sqrt(d2):.1f} sigma from its own LiDAR-anchored fit: that fit kept")
-                pose_G[r] = f.pose.inverse()
-        loo = leave_one_out(s_[keep], d_[keep], weights=w_[keep], **({**kw2, "src_z": z_[keep]} if slant else kw2))
-        q = pose_G[r].inverse().apply(s_)
-        pred = slant_predict(q, z_ - h) if slant else q
-        res_vec = d_ - pred
-        resid = np.linalg.norm(res_vec, axis=1)
-        f.residuals = res_vec[keep]
-        f.rms = float(np.sqrt(np.mean(resid[keep] ** 2))) if keep.any() else float("nan")
-        kidx = np.cumsum(keep) - 1
-        per = []
-        for k, (scn, i, j) in enumerate(info):  # per reflector observation (few)
-            per.append({"scene": scn, "lidar_index": i, "radar_index": j, "radar_xy": d_[k], "residual_m": float(resid[k]), "used": bool(keep[k]),
-                        "holdout_residual_m": float(loo["holdout_residuals"][kidx[k]]) if keep[k] and len(loo["holdout_residuals"]) else float("nan")})
-        mh = h if h is not None else 0.0
-        T_G_radar = pose2_to_T(pose_G[r], mh if slant else 0.0)
-        results[r] = RadarResult(r, pose_G[r], mh, T_lidar_G @ T_G_radar, f, radar_radar.get(r, {}).get("pose_ref"), per, loo,
-                                 [(info[i], why) for i, why in rej], patent_G.get(r), _inverse_sigma(f))
-    allxy = np.concatenate([np.asarray(v, float).reshape(-1, 2) for s in scenes for v in (s.raw_radar_xy or s.radar_xy).values()]) if scenes else np.zeros((0, 2))
-    return RigCalibration(T_lidar_G, results, filter_counts, radar_radar, joint_info, quantisation_report(allxy), model, notes)
+    loo = leave_one_out(s_[keep], d_[keep], weights=w_[keep], **({**kw2, "src_z": z_[keep]} if slant else kw2))
+    q = pose_G[r].inverse().apply(s_)
+    pred = slant_predict(q, z_ - h) if slant else q
+    res_vec = d_ - pred
+    resid = np.linalg.norm(res_vec, axis=1)
+    f.residuals = res_vec[keep]
+    f.rms = float(np.sqrt(np.mean(resid[keep] ** 2))) if keep.any() else float("nan")
+    kidx = np.cumsum(keep) - 1
+    per = []
+    for k, (scn, i, j) in enumerate(info):  # per reflector observation (few)
+        per.append({"scene": scn, "lidar_index": i, "radar_index": j, "radar_xy": d_[k], "residual_m": float(resid[k]), "used": bool(keep[k]),
+                    "holdout_residual_m": float(loo["holdout_residuals"][kidx[k]]) if keep[k] and len(loo["holdout_residuals"]) else float("nan")})
+    mh = h if h is not None else 0.0
+    T_G_radar = pose2_to_T(pose_G[r], mh if slant else 0.0)
+    return RadarResult(r, pose_G[r], mh, rig.T_lidar_G @ T_G_radar, f, radar_radar.get(r, {}).get("pose_ref"), per, loo,
+                       [(info[i], why) for i, why in rej], patent_G.get(r), _inverse_sigma(f))
 
 
 def _inverse_sigma(f: Fit2D) -> dict:
@@ -373,25 +465,43 @@ def _fit_kw(slant: bool, known_h, h_guess) -> dict:
 
 
 def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate, z_nominal, in_region):
-    """All radar poses at once. Observations: every radar's matched LiDAR reflectors (kept ones), plus detections of
-    reflectors that two or more radars see but the LiDAR does not (free 2D points at the median reflector height). Long (~115 lines): the parameter packing, the residual function over
-    all radars and free points, and the unpacking share one layout; split, the layout would be restated in each piece."""
+    """All radar poses at once. Observations: every radar's matched LiDAR reflectors (kept ones, ``keepinfo``: radar
+    -> :class:`_Matched`), plus detections of reflectors that two or more radars see but the LiDAR does not (free 2D
+    points at the median reflector height). Returns the new poses T_G_radar, heights and a summary."""
     names = list(fits)
-    # free points: per scene, cluster unmatched detections (in G under current poses) seen by >= 2 radars
-    free_obs = []  # (radar index, free point index, measurement)
+    free_init, free_obs = _free_points(scenes, names, pose_G, heights, keepinfo, slant, gate, z_nominal, in_region)
+    prob = _JointProblem.build(names, pose_G, heights, keepinfo, free_init, slant, z_nominal)
+    all_obs = _FreeObs(np.array([o[0] for o in free_obs], int), np.array([o[1] for o in free_obs], int), np.array([o[2] for o in free_obs]).reshape(-1, 2))
+    x, obs, dropped = _solve_dropping_outliers(prob, all_obs)
+    free_init = [f for i, f in enumerate(free_init) if i not in dropped]
+    P, H, F = prob.unpack(x)
+    new_pose = {r: Pose2(float(_wrap(P[k, 0])), P[k, 1:].copy()) for k, r in enumerate(names)}
+    new_h = {r: (float(H[k]) if (slant or heights[r] is not None) else None) for k, r in enumerate(names)}
+    for r in heights:
+        if r not in new_h:
+            new_h[r] = heights[r]
+    rr = prob.resid(x, obs)
+    return new_pose, new_h, {"enabled": True, "free_points": len(free_init), "free_points_dropped": len(dropped), "n_obs": int(len(rr) // 2), "rms": float(np.sqrt(np.mean(rr.reshape(-1, 2) ** 2) * 2)) if len(rr) else 0.0}
+
+
+def _free_points(scenes, names, pose_G, heights, keepinfo, slant, gate, z_nominal, in_region) -> tuple[list, list]:
+    """Radar-only reflectors: per scene, the detections no LiDAR match used (strong enough, inside ``in_region``,
+    in G under the current poses) clustered across radars; a cluster seen by >= 2 radars, once each, is a free point.
+    Returns the free points' starting xy in G and the observations (radar index, free point index, measurement)."""
+    free_obs = []
     free_init = []
-    for si, sc in enumerate(scenes):
+    for sc in scenes:
         pts, rid, mids = [], [], []
         for k, r in enumerate(names):
             m = np.asarray(sc.radar_xy.get(r, np.zeros((0, 2))), float).reshape(-1, 2)
             if len(m) == 0:
                 continue
-            used = {j for (scn, i, j), kp in zip(keepinfo[r][3], keepinfo[r][4]) if scn == sc.name}
+            used = {j for (scn, i, j), kp in zip(keepinfo[r].info, keepinfo[r].keep) if scn == sc.name}
             un = np.array([j for j in range(len(m)) if j not in used], int)
             rc = (sc.radar_rcs or {}).get(r)
-            if rc is not None and len(un) and np.isfinite(keepinfo[r][8]).any():
+            if rc is not None and len(un) and np.isfinite(keepinfo[r].rcs).any():
                 # weak echoes (clutter, multipath) are not radar-only reflectors
-                un = un[np.asarray(rc, float)[un] >= np.nanpercentile(keepinfo[r][8], 10) - 6.0]
+                un = un[np.asarray(rc, float)[un] >= np.nanpercentile(keepinfo[r].rcs, 10) - 6.0]
             if len(un) == 0:
                 continue
             h = heights[r] if heights[r] is not None else 0.0
@@ -416,80 +526,105 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
             free_init.append(fr.cluster_means[c])
             for mi in members:
                 free_obs.append((int(allr[mi]), fid, allm[mi]))
-    est_h = [slant and heights[r] is None for r in names]
-    nr = len(names)
-    x0 = np.concatenate([np.concatenate([pose_G[r].as_array() for r in names]), np.array([heights[r] or 0.0 for r in names]), np.array(free_init).ravel()])
-    anchored = []
-    for k, r in enumerate(names):
-        s_, d_, z_, _info, keep, _rej, _kw, w_, _ = keepinfo[r]
-        anchored.append((k, s_[keep], d_[keep], z_[keep], np.sqrt(w_[keep])[:, None]))
-    fo_r = np.array([o[0] for o in free_obs], int)
-    fo_f = np.array([o[1] for o in free_obs], int)
-    fo_m = np.array([o[2] for o in free_obs]).reshape(-1, 2)
-    fixed_h = np.array([heights[r] if heights[r] is not None else 0.0 for r in names])
+    return free_init, free_obs
 
-    def unpack(x):
+
+class _FreeObs(NamedTuple):
+    """Radar detections of free points: radar index (N,), free point index (N,), measurement xy (N,2) radar frame."""
+
+    radar: np.ndarray
+    point: np.ndarray
+    xy: np.ndarray
+
+
+@dataclass
+class _JointProblem:
+    """Parameter layout of the joint refinement: x = [nr x (theta, a, b) T_G_radar | nr heights | free points xy in G];
+    heights of radars with a known one stay fixed."""
+
+    nr: int
+    slant: bool
+    z_nominal: float
+    est_h: list  # per radar: height estimated
+    fixed_h: np.ndarray  # per radar: known height (0 when estimated)
+    anchored: list  # per radar: (index, src xy G, dst radar xy, src z, sqrt weight (N,1)) of its kept LiDAR matches
+    x0: np.ndarray
+
+    @classmethod
+    def build(cls, names, pose_G, heights, keepinfo, free_init, slant, z_nominal) -> _JointProblem:
+        est_h = [slant and heights[r] is None for r in names]
+        x0 = np.concatenate([np.concatenate([pose_G[r].as_array() for r in names]), np.array([heights[r] or 0.0 for r in names]), np.array(free_init).ravel()])
+        anchored = []
+        for k, r in enumerate(names):
+            s_, d_, z_, _info, keep, _rej, _kw, w_, _ = keepinfo[r]
+            anchored.append((k, s_[keep], d_[keep], z_[keep], np.sqrt(w_[keep])[:, None]))
+        fixed_h = np.array([heights[r] if heights[r] is not None else 0.0 for r in names])
+        return cls(len(names), slant, z_nominal, est_h, fixed_h, anchored, x0)
+
+    def unpack(self, x):
+        nr = self.nr
         P = x[:3 * nr].reshape(nr, 3)
-        H = np.where(est_h, x[3 * nr:4 * nr], fixed_h)
+        H = np.where(self.est_h, x[3 * nr:4 * nr], self.fixed_h)
         F = x[4 * nr:].reshape(-1, 2)
         return P, H, F
 
-    def pred_radar(P, H, k, pg_xy, pz):
+    def pred_radar(self, P, H, k, pg_xy, pz):
+        """Radar ``k``'s predicted measurement of points ``pg_xy`` (G) at heights ``pz``."""
         inv = Pose2(P[k, 0], P[k, 1:]).inverse()
         q = inv.apply(pg_xy)
-        return slant_predict(q, pz - H[k]) if slant else q
+        return slant_predict(q, pz - H[k]) if self.slant else q
 
-    def resid(x):
-        P, H, F = unpack(x)
+    def free_errors(self, P, H, F, obs: _FreeObs, k: int) -> np.ndarray:
+        """(n,2) residuals of radar ``k``'s free-point observations (``obs.radar == k``)."""
+        sel = obs.radar == k
+        return self.pred_radar(P, H, k, F[obs.point[sel]], np.full(sel.sum(), self.z_nominal)) - obs.xy[sel]
+
+    def resid(self, x, obs: _FreeObs) -> np.ndarray:
+        P, H, F = self.unpack(x)
         out = []
-        for k, s_, d_, z_, sw in anchored:  # loop over radars
-            out.append(((pred_radar(P, H, k, s_, z_) - d_) * sw).ravel())
-        for k in range(nr):
-            sel = fo_r == k
-            if sel.any():
-                out.append((pred_radar(P, H, k, F[fo_f[sel]], np.full(sel.sum(), z_nominal)) - fo_m[sel]).ravel())
+        for k, s_, d_, z_, sw in self.anchored:  # loop over radars
+            out.append(((self.pred_radar(P, H, k, s_, z_) - d_) * sw).ravel())
+        for k in range(self.nr):
+            if (obs.radar == k).any():
+                out.append(self.free_errors(P, H, F, obs, k).ravel())
         return np.concatenate(out)
 
-    free_mask = np.ones(len(x0), bool)
-    free_mask[3 * nr:4 * nr] = est_h
-    all_r, all_f, all_m = fo_r, fo_f, fo_m
+
+def _solve_dropping_outliers(prob: _JointProblem, all_obs: _FreeObs):
+    """Solve; drop radar-only points that do not fit (beyond 4x the anchored RMS: multipath, clutter seen twice);
+    again (up to four solves). Returns the solution x, the observations it used and the dropped free points."""
+    nr = prob.nr
+    free_mask = np.ones(len(prob.x0), bool)
+    free_mask[3 * nr:4 * nr] = prob.est_h
     dropped: set = set()
-    for _round in range(4):  # solve; drop radar-only points that do not fit (multipath, clutter seen twice); again
-        live = np.array([f not in dropped for f in all_f], bool)
-        fo_r, fo_f, fo_m = all_r[live], all_f[live], all_m[live]
+    for _round in range(4):
+        live = np.array([f not in dropped for f in all_obs.point], bool)
+        obs = _FreeObs(all_obs.radar[live], all_obs.point[live], all_obs.xy[live])
         mask = free_mask.copy()
         for f in dropped:
             mask[4 * nr + 2 * f:4 * nr + 2 * f + 2] = False
 
-        def resid_free(xf, mask=mask):
-            x = x0.copy()
+        def resid_free(xf, mask=mask, obs=obs):
+            x = prob.x0.copy()
             x[mask] = xf
-            return resid(x)
+            return prob.resid(x, obs)
 
-        sol = least_squares(resid_free, x0[mask], method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
-        x = x0.copy()
+        sol = least_squares(resid_free, prob.x0[mask], method="trf", x_scale="jac", ftol=1e-12, xtol=1e-12, gtol=1e-12)
+        x = prob.x0.copy()
         x[mask] = sol.x
-        P, H, F = unpack(x)
-        anch = np.concatenate([((pred_radar(P, H, k, s_, z_) - d_) * sw).ravel() for k, s_, d_, z_, sw in anchored]) if anchored else np.zeros(0)
+        P, H, F = prob.unpack(x)
+        anch = np.concatenate([((prob.pred_radar(P, H, k, s_, z_) - d_) * sw).ravel() for k, s_, d_, z_, sw in prob.anchored]) if prob.anchored else np.zeros(0)
         scale = max(float(np.sqrt(np.mean(anch**2) * 2)) if len(anch) else 0.0, 0.01)
         bad = set()
         for k in range(nr):
-            sel = fo_r == k
+            sel = obs.radar == k
             if sel.any():
-                e = np.linalg.norm(pred_radar(P, H, k, F[fo_f[sel]], np.full(sel.sum(), z_nominal)) - fo_m[sel], axis=1)
-                bad |= {int(f) for f, ei in zip(fo_f[sel], e) if ei > 4 * scale}
+                e = np.linalg.norm(prob.free_errors(P, H, F, obs, k), axis=1)
+                bad |= {int(f) for f, ei in zip(obs.point[sel], e) if ei > 4 * scale}
         if not bad:
             break
         dropped |= bad
-    free_init = [f for i, f in enumerate(free_init) if i not in dropped]
-    P, H, F = unpack(x)
-    new_pose = {r: Pose2(float(_wrap(P[k, 0])), P[k, 1:].copy()) for k, r in enumerate(names)}
-    new_h = {r: (float(H[k]) if (slant or heights[r] is not None) else None) for k, r in enumerate(names)}
-    for r in heights:
-        if r not in new_h:
-            new_h[r] = heights[r]
-    rr = resid(x)
-    return new_pose, new_h, {"enabled": True, "free_points": len(free_init), "free_points_dropped": len(dropped), "n_obs": int(len(rr) // 2), "rms": float(np.sqrt(np.mean(rr.reshape(-1, 2) ** 2) * 2)) if len(rr) else 0.0}
+    return x, obs, dropped
 
 
 def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_gate: float = 4.0, ground_tol: float = 0.05, cluster_tol: float = 0.12,
