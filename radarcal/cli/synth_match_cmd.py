@@ -49,6 +49,7 @@ def synth_match(
     calib_trans: float = typer.Option(0.02, "--calib-trans-m", help="Translation error of the bundle's T_cam_lidar (m)."),
     pnp_px: float = typer.Option(1.5, "--pnp-px", help="Click noise (px) of the four-point field PnP."),
     camera_miss: list[str] = typer.Option(None, "--camera-miss", help="ROBOT:T0:T1 - the detector misses that robot in [T0, T1] s; the LiDAR still sees it (repeatable)."),
+    lidar_miss: list[str] = typer.Option(None, "--lidar-miss", help="ROBOT:T0:T1 - the LiDAR gets no return from that robot in [T0, T1] s (dropout); the camera still sees it (repeatable)."),
     absent: list[str] = typer.Option(None, "--absent", help="ROBOT or ROBOT:T0:T1 - that robot is truly not on the field (whole replay or in [T0, T1] s; repeatable)."),
     as_json: JsonOpt = False,
 ) -> None:
@@ -66,7 +67,7 @@ def synth_match(
     fm = load_field(field)
     cfg = MatchConfig(frames=frames, seed=seed, robots=robots, scenario=scenario, aerial=not no_aerial, people=people, lidar_points=lidar_points,
                       calib_rot_deg=calib_rot, calib_trans_m=calib_trans, pnp_px=pnp_px, camera_miss=parse_robot_windows(camera_miss, "--camera-miss", True),
-                      absent=parse_robot_windows(absent, "--absent", False))  # fmt: skip
+                      absent=parse_robot_windows(absent, "--absent", False), lidar_miss=parse_robot_windows(lidar_miss, "--lidar-miss", True))  # fmt: skip
     prog = lambda it, description="": progress(it, description, enabled=not as_json)  # noqa: E731
     s = write_match_replay(out, fm, cfg, generator=command_line(), progress=prog)
     emit(s, as_json, lambda d: typer.echo(f"wrote {d['out']}: {d['frames']} frames, {d['clouds']} clouds, {d['robots']} robots, {d['boxes']} boxes "

@@ -148,7 +148,7 @@ class Guesser:
     """Guesses for empty enemy slots (see the module text). ``vmax_mps`` bounds where a robot can be by now."""
 
     def __init__(self, progress: ProgressView, ban_s: float = 8.0, pause_s: float = 5.0, pause_max_s: float = 60.0, margin_s: float = 2.5,
-                 latency_s: float = 0.3, blind_s: float = 5.0, bits_trial_max_s: float = 8.0, vmax_mps: float = 3.0, reach_margin_m: float = 1.0, max_reach_m: float = 6.0):  # fmt: skip
+                 latency_s: float = 0.3, blind_s: float = 5.0, bits_trial_max_s: float = 8.0, vmax_mps: float = 3.0, reach_margin_m: float = 1.0, max_reach_m: float = 6.0, last_s: float = 3.0):  # fmt: skip
         self.progress = progress
         self.ban_s, self.pause_s, self.pause_max_s = float(ban_s), float(pause_s), float(pause_max_s)
         self.margin_s = float(margin_s)  # 0x020C comes at 1 Hz: the longest wait for a decision (two reports + latency)
@@ -156,6 +156,9 @@ class Guesser:
         self.blind_s = float(blind_s)  # without mark feedback a guess lasts this long
         self.bits_trial_max_s = float(bits_trial_max_s)  # bits only: longest wait for the bit a right guess would raise
         self.vmax, self.reach_margin, self.max_reach = float(vmax_mps), float(reach_margin_m), float(max_reach_m)
+        # a robot's last position is a plausible guess this long after its last measurement (unless the progress
+        # confirms it): measured on generated matches, a moving robot is metres away from it after that
+        self.last_s = float(last_s)
         self.guesses: dict[str, Guess] = {}
         self.bans: dict[tuple[str, str], float] = {}
         self.paused_until: dict[str, float] = {}
@@ -239,6 +242,9 @@ class Guesser:
                     continue
                 g.xy = c.xy.copy()
             elif s.xy is not None:
+                if not g.confirmed and t - s.t_seen > self.last_s:
+                    self._end(t, g, "stale", ban=False)
+                    continue
                 g.xy = s.xy.copy()
             if not self._check(t, g, s.number, fresh_mark):
                 self._end(t, g, "not confirmed", ban=True)
@@ -286,7 +292,7 @@ class Guesser:
                 self._end(t, own, "switched", ban=False)
             if c is not None:
                 g = Guess(s.label, f"track:{c.id}", c.xy.copy(), t, t, self._trial(s.number), None, c.id)
-            elif s.xy is not None and (s.label, "last") not in self.bans:
+            elif s.xy is not None and (s.label, "last") not in self.bans and t - s.t_seen <= self.last_s:
                 g = Guess(s.label, "last", s.xy.copy(), t, t, self._trial(s.number), None)
             else:
                 continue

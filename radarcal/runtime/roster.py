@@ -215,6 +215,8 @@ class Roster:
         if not comp:
             return {}
         holder_seen = {lab: any(o.id == s.track_id and o.seen for o in comp) for lab, s in self.slots.items()}
+        # the pipeline handed the label over: the slot's track lost its name and a track with no past of its own took it
+        handed = {lab: any(o.id == s.track_id and o.label is None for o in comp) for lab, s in self.slots.items()}
         S = np.zeros((len(comp), len(labels)))
         for i, o in enumerate(comp):
             h = self.history.get(o.id, {})
@@ -223,7 +225,8 @@ class Roster:
                 S[i, j] = h.get(lab, 0.0)
                 if self.slots[lab].track_id == o.id:
                     S[i, j] *= 1.0 + self.stick
-                if o.label == lab and o.seen and (stable or not holder_seen[lab]):
+                own_past = h.get(lab, 0.0) >= sum(v for k, v in h.items() if k != lab)
+                if o.label == lab and o.seen and (stable or not holder_seen[lab] or (handed[lab] and own_past)):
                     S[i, j] += 1e3
         ok = S >= self.min_history_s
         cost = np.where(ok, -S, 1e6)

@@ -73,6 +73,7 @@ class MatchConfig:
     station: str = "red"
     camera_miss: tuple = ()  # ((label, t0, t1), ...): the detector drops that robot in [t0, t1]; the LiDAR still sees it
     absent: tuple = ()  # ((label, t0, t1), ...): that robot is truly off the field in [t0, t1] (no returns, no box, not in truth)
+    lidar_miss: tuple = ()  # ((label, t0, t1), ...): the LiDAR gets no return from that robot in [t0, t1] (dropout); the camera still sees it
 
 
 def _in_windows(windows: tuple, label: str, t: np.ndarray) -> np.ndarray:
@@ -368,6 +369,9 @@ def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchC
             tt, obj = raycast(field_model, bx, o_f[None], d_f[a:b])
             t_all[a:b], obj_all[a:b] = tt, obj
         keep = np.isfinite(t_all) & (t_all > 0.05) & (t_all < 260.0)
+        for i, lab in enumerate(labels):  # LiDAR dropout: that robot's returns are lost (not replaced by what is behind it)
+            if cfg.lidar_miss:
+                keep &= ~((obj_all == A1 + n_static + cfg.people + i) & _in_windows(cfg.lidar_miss, lab, t_fire))
         rng_true = t_all[keep]
         pts = d_l[keep] * (rng_true + rng_lidar.normal(0, cfg.lidar_range_sigma, rng_true.size))[:, None]
         robot_idx = obj_all[keep] - (A1 + n_static + cfg.people)
@@ -400,7 +404,8 @@ def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchC
             cam_miss = bool(_in_windows(cfg.camera_miss, lab, t_img[f : f + 1])[0])
             truth.append({"label": lab, "p_field": [_fmt(v) for v in P[f, i]], "visible": visible, "visible_fraction": _fmt(frac[i], 3),
                           "in_view": bool(np.isfinite(full[i, 0])), "lidar_hits": int(hits_per_cloud[last, i]) if last >= 0 else 0,
-                          "xyxy": None if not visible else [_fmt(v, 2) for v in vb[i]], **({"camera_miss": True} if cam_miss else {})})  # fmt: skip
+                          "xyxy": None if not visible else [_fmt(v, 2) for v in vb[i]], **({"camera_miss": True} if cam_miss else {}),
+                          **({"lidar_miss": True} if _in_windows(cfg.lidar_miss, lab, t_img[f : f + 1])[0] else {})})  # fmt: skip
             if not visible or frac[i] < cfg.min_visible or rng_det.random() < cfg.miss:
                 continue
             b = vb[i] + rng_det.normal(0, rng_det.uniform(*cfg.jitter_px), 4)

@@ -1,5 +1,6 @@
-"""``synth match`` windows: --camera-miss drops only the boxes (the LiDAR still sees the robot), --absent takes the
-robot off the field (no returns, no box, not in the truth); the other robots are unchanged."""
+"""``synth match`` windows: --camera-miss drops only the boxes (the LiDAR still sees the robot), --lidar-miss only the
+robot's LiDAR returns (the camera still sees it), --absent takes the robot off the field (no returns, no box, not in
+the truth); the other robots are unchanged."""
 
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ def replays(tmp_path_factory):
     fm = load_field("rmuc2024")
     base = dict(frames=60, seed=3, robots=3, aerial=False, people=0, lidar_points=3000, false_positives=0.0, miss=0.0, swap=0.0)
     out = {}
-    for name, extra in (("base", {}), ("miss", {"camera_miss": (("blue_3", 0.5, 1.2),)}), ("absent", {"absent": (("blue_1", 0.0, 0.8),)})):
+    for name, extra in (("base", {}), ("miss", {"camera_miss": (("blue_3", 0.5, 1.2),)}), ("absent", {"absent": (("blue_1", 0.0, 0.8),)}),
+                        ("lidar_miss", {"lidar_miss": (("blue_3", 0.5, 1.2),)})):
         d = tmp_path_factory.mktemp(name)
         write_match_replay(d, fm, MatchConfig(**base, **extra))
         out[name] = (_lines(d / "truth.jsonl"), _lines(d / "detections.jsonl"))
@@ -67,6 +69,27 @@ def test_camera_miss_window(replays):
     for a, b in zip(d0, d1):
         keep = [x for x in a["boxes"] if not (x["label"] == "blue_3" and 0.5 <= a["t"] <= 1.2)]
         assert b["boxes"] == keep
+
+
+@pytest.mark.slow
+def test_lidar_miss_window(replays):
+    """No return from blue_3 inside the window (every cloud that ends in it), the base replay's returns outside it;
+    its boxes and every other robot as in the base replay."""
+    (t0, d0), (t1, d1) = replays["base"], replays["lidar_miss"]
+    inside = outside = 0
+    for a, b, da, db in zip(t0, t1, d0, d1):
+        ra = {r["label"]: r for r in a["robots"]}
+        rb = {r["label"]: r for r in b["robots"]}
+        assert db["boxes"] == da["boxes"]  # the camera sees what it saw
+        if 0.6 <= b["t"] <= 1.2:  # the last cloud before the frame ended inside the window
+            assert rb["blue_3"]["lidar_hits"] == 0 and rb["blue_3"].get("lidar_miss") is True
+            inside += ra["blue_3"]["lidar_hits"]
+        elif b["t"] < 0.5 or b["t"] > 1.4:
+            assert rb["blue_3"]["lidar_hits"] == ra["blue_3"]["lidar_hits"] and "lidar_miss" not in rb["blue_3"]
+            outside += rb["blue_3"]["lidar_hits"]
+        for lb in ("blue_1", "blue_7"):
+            assert rb[lb]["lidar_hits"] == ra[lb]["lidar_hits"] and rb[lb]["p_field"] == ra[lb]["p_field"]
+    assert inside >= 10 and outside >= 10  # the base replay had returns there: the window removed them
 
 
 def test_window_option_parsing():
