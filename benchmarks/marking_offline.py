@@ -16,7 +16,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.referee import CONFIGS, MISS, SEEDS, _make, _row
+from benchmarks.referee import CONFIGS, MISS, SEEDS, _make, _row, take_option
 
 DROPOUT_S = 3.0  # twice as long as the LiDAR-first tracker coasts (1.5 s): the track is lost, not bridged
 FLAGS = {"--no-roster": {"roster": False, "guess": False}, "--roster": {"roster": True}, "--no-guess": {"guess": False}, "--guess": {"guess": True}}
@@ -105,12 +105,7 @@ def main(argv: list[str]) -> int:
     args = list(argv)
 
     def opt(name: str, default: str) -> str:
-        if name in args:
-            i = args.index(name)
-            v = args[i + 1]
-            del args[i : i + 2]
-            return v
-        return default
+        return take_option(args, name, default)
 
     seeds = tuple(int(s) for s in opt("--seeds", ",".join(map(str, SEEDS))).split(","))
     frames = int(opt("--frames", "1350"))

@@ -98,16 +98,21 @@ def _row(s: dict, label: str) -> dict:
     return next(r for r in s["robots"] if r["robot"] == label)
 
 
+def take_option(args: list[str], name: str, default: str) -> str:
+    """``--name VALUE`` taken out of ``args`` (the benchmarks' own argv), or ``default``."""
+    if name in args:
+        i = args.index(name)
+        v = args[i + 1]
+        del args[i : i + 2]
+        return v
+    return default
+
+
 def main(argv: list[str]) -> int:
     args = list(argv)
 
     def opt(name: str, default: str) -> str:
-        if name in args:
-            i = args.index(name)
-            v = args[i + 1]
-            del args[i : i + 2]
-            return v
-        return default
+        return take_option(args, name, default)
 
     seeds = tuple(int(s) for s in opt("--seeds", ",".join(map(str, SEEDS))).split(","))
     frames = int(opt("--frames", "1350"))
