@@ -1,6 +1,7 @@
 """Several cameras in ``radarcal run`` (issue #19): a 6 mm wide + 16 mm tele station against the wide camera alone.
 
     PYTHONPATH=$PWD python -m benchmarks multicam        # ~10 min on 2 busy cores (replays cached in $RADARCAL_BENCH_CACHE)
+    PYTHONPATH=$PWD python -m benchmarks.multicam A:4 B:13,14   # other seeds of the same families
 
 Per seed, ``radarcal synth field --cameras cam0=6mm,cam1=16mm`` writes a two-camera replay (both 1280x1024, the
 tele aimed at the far half, frames 11 ms apart, a detector whose misses, jitter and number misreads follow the box's
@@ -67,12 +68,26 @@ def score(rep: Path, cameras: str) -> dict:
     return b
 
 
+def _selection(argv: list[str]) -> list[tuple[str, tuple[int, ...]]]:
+    """``FAM:SEED[,SEED...]`` arguments (e.g. ``A:4 B:13,14``: seeds never looked at while tuning); none: the
+    families' own seeds."""
+    if not argv:
+        return [(fam, f["seeds"]) for fam, f in FAMILIES.items()]
+    out = []
+    for a in argv:
+        fam, _, seeds = a.partition(":")
+        if fam not in FAMILIES or not seeds:
+            raise SystemExit(f"benchmarks.multicam: expected FAM:SEED[,SEED] with FAM in {', '.join(FAMILIES)}, got {a!r}")
+        out.append((fam, tuple(int(x) for x in seeds.split(","))))
+    return out
+
+
 def main(argv: list[str]) -> int:
     cache = Path(os.environ.get("RADARCAL_BENCH_CACHE") or tempfile.mkdtemp(prefix="radarcal_multicam_"))
     cache.mkdir(parents=True, exist_ok=True)
     rows = []
-    for fam, f in FAMILIES.items():
-        for seed in f["seeds"]:
+    for fam, seeds in _selection(argv):
+        for seed in seeds:
             rep = replay(cache, fam, seed)
             w, wt = score(rep, "cam0"), score(rep, "cam0,cam1")
             rows.append((fam, seed, w, wt))
@@ -84,7 +99,7 @@ def main(argv: list[str]) -> int:
         print(f"{fam:>3} {seed:>4} | {w['p95_m']:10.2f} {wt['p95_m']:9.2f} {100 * (wt['p95_m'] / w['p95_m'] - 1):+6.0f}% | {w['median_m']:11.3f} {wt['median_m']:6.3f} | "
               f"{w['correct_label_pct']:12.1f} {wt['correct_label_pct']:6.1f} | {w['located']:5d}/{w['robot_frames']:<6d} {wt['located']:5d} | "
               f"{w['twice_pct']:12.1f} {wt['twice_pct']:5.1f} | {w['twice_labelled_pct']:18.1f} {wt['twice_labelled_pct']:5.1f} | {w['fps']:8.1f} {wt['fps']:5.1f}")  # fmt: skip
-    for fam in FAMILIES:
+    for fam in dict.fromkeys(f for f, *_ in rows):
         sel = [(w, wt) for f, _, w, wt in rows if f == fam]
         r = np.array([wt["p95_m"] / w["p95_m"] for w, wt in sel])
         print(f"family {fam}: p95 wide+tele / wide = {r.mean():.2f} (seeds {', '.join(f'{x:.2f}' for x in r)}); correct label "

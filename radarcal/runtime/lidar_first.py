@@ -26,7 +26,7 @@ from radarcal.runtime.clusters import ClusterParams, cluster_points
 from radarcal.runtime.identity import add_votes, assign_labels, match_boxes, project_tracks, visible_parts
 from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Track3D, Tracker3D  # noqa: F401
 
-__all__ = ["LidarFirstConfig", "LidarFirst", "point_times", "fuse_fixes", "LEGIBLE_PX"]
+__all__ = ["LidarFirstConfig", "LidarFirst", "point_times", "fuse_fixes", "box_fix_order", "misread_holder", "LEGIBLE_PX"]
 
 LEGIBLE_PX = 64.0  # box height (px) from which a robot's armour number (~1/4 of it) counts as fully legible
 
@@ -206,17 +206,20 @@ class LidarFirst:
                                       "h": float(boxes[j, 3] - boxes[j, 1])})  # fmt: skip
         # box-only fixes for the boxes no LiDAR track explains (one per robot however many cameras box it)
         holder = {tr.label: tr for tr in tk.tracks if tr.label is not None}
-        for fx in fuse_fixes(fixes):
+        fixed: set[int] = set()  # tracks given a box-only fix this tick: a second fix of that label is another robot
+        for fx in box_fix_order(fuse_fixes(fixes), holder):
             tf, label, pf = fx["t"], fx["label"], fx["p"]
             tr = holder.get(label)
             if tr is not None and tf - tr.t_lidar < 0.3:
                 continue  # the LiDAR sees that robot: a box-only fix would only add the box path's errors
+            tr = misread_holder(tk, tr if tr is None or tr.id not in fixed else None, label, pf[:2], fx["sigma"], tf, fixed)
             # a LiDAR track where the box puts the robot (its projection missed the box): identity by position
             near = [o for o in tk.tracks if o.n_lidar and tf - o.t_lidar < 0.3 and o.label in (None, label)
                     and np.linalg.norm(o.x[:2] + o.x[2:] * (tf - o.t) - pf[:2]) < 0.8]  # fmt: skip
             got = near[0] if near else tk.update_box(label, pf[:2], fx["sigma"], tf, float(pf[2]), fx["source"], tr)
             if got is None:
                 continue
+            fixed.add(got.id)
             got.last_box = fx["j"] if fx["k"] == len(views) - 1 else got.last_box
             self.last_boxes[got.id] = (fx["k"], fx["j"])
             votes.setdefault(got.id, (got, []))[1].extend((lab, (0.5 if near else 1.0) * sc, h) for lab, sc, h in fx["votes"])
@@ -309,3 +312,34 @@ def fuse_fixes(fixes: list[dict], same_label_m: float = 0.5, other_label_m: floa
         out.append({**lead, "p": p, "sigma": float(1.0 / np.sqrt(w.sum())), "source": "depth" if any(m["source"] == "depth" for m in g) else "ground",
                     "label": max(by_label, key=by_label.get), "t": max(m["t"] for m in g), "votes": [(m["label"], m["score"], m.get("h", LEGIBLE_PX)) for m in g]})  # fmt: skip
     return out
+
+
+def box_fix_order(fixes: list[dict], holder: dict) -> list[dict]:
+    """Fused box-only fixes, the one nearest its label's track first (fixes without one last): when one tick has two
+    fixes of a label, the one where that track is takes it and the other is another robot (a misread number)."""
+
+    def dist(fx):
+        tr = holder.get(fx["label"])
+        return np.inf if tr is None else float(np.linalg.norm(tr.x[:2] + tr.x[2:] * (fx["t"] - tr.t) - fx["p"][:2]))
+
+    return sorted(fixes, key=dist)
+
+
+def misread_holder(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray, sigma: float, t: float, fixed: set[int]) -> Track3D | None:
+    """The track a box-only fix of ``label`` updates: ``tr`` (the label's track) when its gate takes the fix, else a
+    track of the same colour with another number whose gate takes it (nearest first; not seen by the LiDAR now, no
+    box-only fix yet this tick) — a misread number on a robot the tracker already follows: the fix moves that track
+    and its label becomes one more vote (the track's vote memory keeps its name), instead of a new track of the
+    misread label beside it. Else ``tr`` (relocated by consistent fixes) or None (a new box-born track)."""
+
+    def gated(o):
+        return float(np.linalg.norm(o.x[:2] + o.x[2:] * (t - o.t) - xy)) <= float(tk._gate(o, np.array([sigma]), np.array([t]))[0])
+
+    if tr is not None and gated(tr):
+        return tr
+    colour = str(label).split("_")[0]
+    alt = [o for o in tk.tracks if o.label is not None and o.label != label and o.label.split("_")[0] == colour and o.id not in fixed
+           and t - o.t_lidar >= 0.3 and not o.aerial and gated(o)]  # fmt: skip
+    if alt:
+        return min(alt, key=lambda o: float(np.linalg.norm(o.x[:2] + o.x[2:] * (t - o.t) - xy)))
+    return tr

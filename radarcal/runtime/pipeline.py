@@ -206,19 +206,22 @@ class Pipeline:
         b = np.asarray(d.xyxy, float)
         return b.shape == (4,) and bool(np.all(np.isfinite(b))) and b[2] > b[0] and b[3] > b[1] and bool(np.isfinite(d.score)) and d.score >= min_score
 
-    def _box_depths(self, boxes: np.ndarray, t: float, queue: CloudQueue | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def _box_depths(self, boxes: np.ndarray, t: float, queue: CloudQueue | None = None, frame_boxes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """LiDAR depth (camera z) and its sigma for each box from the cloud queue (NaN: none); robots standing nearer
-        (box bottom lower in the image) and overlapping a box hide part of it: their pixels are not this robot's."""
+        (box bottom lower in the image) and overlapping a box hide part of it: their pixels are not this robot's.
+        ``frame_boxes``: every box of the camera frame (default ``boxes``) — a robot in front hides pixels whether or
+        not its own box is located here (one a LiDAR track explains is not)."""
         depth = np.full(len(boxes), np.nan)
         dsig = np.full(len(boxes), np.nan)
         queue = self.queue if queue is None else queue
         if queue is None:
             return depth, dsig
         queue.expire(t)
+        fb = boxes if frame_boxes is None else np.asarray(frame_boxes, float).reshape(-1, 4)
         for i in range(len(boxes)):
             b = boxes[i]
-            front = (boxes[:, 3] > b[3] + 2) & (boxes[:, 0] < b[2]) & (boxes[:, 2] > b[0]) & (boxes[:, 1] < b[3]) & (boxes[:, 3] > b[1])
-            bd = queue.depth_in_box(b, t, max_age_s=self.cfg.depth_max_age_s, exclude=boxes[front] if front.any() else None)
+            front = (fb[:, 3] > b[3] + 2) & (fb[:, 0] < b[2]) & (fb[:, 2] > b[0]) & (fb[:, 1] < b[3]) & (fb[:, 3] > b[1])
+            bd = queue.depth_in_box(b, t, max_age_s=self.cfg.depth_max_age_s, exclude=fb[front] if front.any() else None)
             if bd is not None:
                 depth[i], dsig[i] = bd.depth, bd.sigma
         return depth, dsig
@@ -251,7 +254,7 @@ class Pipeline:
 
         def locate_boxes(idx: list[int]):
             b = boxes[idx]
-            depth, dsig = self._box_depths(b, t)
+            depth, dsig = self._box_depths(b, t, frame_boxes=boxes)
             loc = self.localiser.locate(b, depth, dsig)
             # a box much wider than high is the visible top of a robot hidden below: its bottom edge is not the
             # robot's foot point, so no ground ray from it
@@ -320,7 +323,7 @@ class Pipeline:
 
         def locate_boxes(idx: list[int]):
             b = boxes[idx]
-            depth, dsig = self._box_depths(b, t, view.queue)
+            depth, dsig = self._box_depths(b, t, view.queue, boxes)
             loc = view.localiser.locate(b, depth, dsig)
             flat = (b[:, 3] - b[:, 1]) < self.cfg.ground_min_aspect * (b[:, 2] - b[:, 0])  # a hidden robot's top: no ground ray
             loc.source[flat & (loc.source == "ground")] = "none"

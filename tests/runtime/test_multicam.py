@@ -7,10 +7,11 @@ import pytest
 
 from radarcal.errors import InputError
 from radarcal.runtime.detector import Detection
-from radarcal.runtime.lidar_first import fuse_fixes
+from radarcal.runtime.lidar_first import box_fix_order, fuse_fixes, misread_holder
 from radarcal.runtime.multicam import TickDetector, group_by_time, missing_text, parse_videos
 from radarcal.runtime.pipeline import fuse_by_label
 from radarcal.runtime.sources import CameraFrame
+from radarcal.runtime.tracks import Tracker3D
 
 
 def _frames(times, prefix=""):
@@ -92,3 +93,37 @@ def test_fuse_by_label_weights_and_gates():
     xy = (np.array([10.0, 5.0]) / 0.25 + np.array([10.4, 5.0]) / 0.01) / (1 / 0.25 + 1 / 0.01)
     assert np.allclose(out["blue_1"][1], xy) and out["blue_1"][3] == "depth" and out["blue_1"][5] == 12.0  # the one at 18 m is dropped
     assert np.allclose(out["red_2"][1], [3.0, 3.0])
+
+
+def _coasting(tk, xy, label, t_lidar=0.0):
+    tr = tk._new(np.array(xy, float), 0.05, 1.0, 0.0, "lidar")
+    tr.label, tr.t_lidar, tr.state = label, t_lidar, "confirmed"
+    return tr
+
+
+def test_a_misread_number_moves_the_robot_s_track_not_a_new_one():
+    """A_2 of the benchmark: the LiDAR lost red_3 on a highland edge, the tele reads its number as red_2 (no track
+    holds red_2): the fix goes to the red_3 track 0.5 m away, never to one of another colour or out of its gate."""
+    tk = Tracker3D()
+    red3, blue2 = _coasting(tk, (13.44, 4.73), "red_3"), _coasting(tk, (13.5, 5.6), "blue_2")
+    assert misread_holder(tk, None, "red_2", np.array([13.39, 5.24]), 0.077, 1.03, set()) is red3
+    assert misread_holder(tk, None, "red_2", np.array([16.4, 4.7]), 0.077, 1.03, set()) is None  # 3 m away: another robot
+    assert misread_holder(tk, None, "red_2", np.array([13.39, 5.24]), 0.077, 1.03, {red3.id}) is None  # red_3 has its fix
+    red3.t_lidar = 1.0  # seen by the LiDAR now: its boxes are matched by projection, a box-only fix is another robot
+    assert misread_holder(tk, None, "red_2", np.array([13.39, 5.24]), 0.077, 1.03, set()) is None
+    assert misread_holder(tk, None, "blue_4", np.array([13.5, 5.5]), 0.077, 1.03, set()) is blue2
+    # the label's own track within its gate always wins
+    red2 = _coasting(tk, (13.2, 5.2), "red_2")
+    red3.t_lidar = 0.0
+    assert misread_holder(tk, red2, "red_2", np.array([13.39, 5.24]), 0.077, 1.03, set()) is red2
+
+
+def test_two_fixes_of_one_label_the_one_at_its_track_first():
+    """A_2: blue_7 boxed at its track (12.9, 5.2) and blue_4 misread as blue_7 4 m away: the near fix goes first
+    (updates blue_7's track); the far one then finds blue_7 taken and cannot move blue_7's track there."""
+    tk = Tracker3D()
+    b7 = _coasting(tk, (12.9, 5.2), "blue_7")
+    far, near = _fix(1, 2, (16.7, 6.9), 0.07, "blue_7"), _fix(0, 2, (12.95, 5.25), 0.07, "blue_7")
+    stray = _fix(0, 1, (3.0, 3.0), 0.07, "red_1")
+    out = box_fix_order([far, stray, near], {"blue_7": b7})
+    assert out[0] is near and out[1] is far and out[2] is stray
