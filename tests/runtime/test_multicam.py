@@ -127,3 +127,44 @@ def test_two_fixes_of_one_label_the_one_at_its_track_first():
     stray = _fix(0, 1, (3.0, 3.0), 0.07, "red_1")
     out = box_fix_order([far, stray, near], {"blue_7": b7})
     assert out[0] is near and out[1] is far and out[2] is stray
+
+
+def test_box_depth_excludes_a_nearer_robot_whose_box_is_not_located():
+    """B11 of the benchmark: a robot half hidden behind a nearer one whose box a LiDAR track explains (so only the
+    far box is located) took the near robot's depth; every box of the frame must count as an occluder."""
+    from pathlib import Path
+
+    from runtime_scene import robot_cloud
+
+    from radarcal.bundle import load_bundle
+    from radarcal.geometry import invert_T, transform_points
+    from radarcal.runtime.loop import Pipeline, RunConfig
+
+    sample = Path(__file__).resolve().parents[2] / "datasets" / "sample_replay"
+    if not (sample / "calib.yaml").is_file():
+        pytest.skip("datasets/sample_replay missing (python datasets/make_sample.py)")
+    b = load_bundle(sample / "calib.yaml")
+    pipe = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b, localise="box"))
+    T_field_cam = pipe.T_field_cam
+    eye = T_field_cam[:2, 3]
+    ahead = T_field_cam[:2, 2] / np.linalg.norm(T_field_cam[:2, 2])  # the optical axis on the field
+    c_near, c_far = eye + 11.0 * ahead, eye + 12.0 * ahead + 0.1 * np.array([-ahead[1], ahead[0]])
+    assert np.allclose(b.field().surface_z(np.array([c_near, c_far])), 0.0)
+    pts = np.vstack([robot_cloud(c_near, height=1.2, viewer_xy=eye), robot_cloud(c_far, viewer_xy=eye, rng=np.random.default_rng(1))])
+    T_lidar_field = invert_T(T_field_cam @ b.T("cam0", "lidar0"))
+    pipe.add_cloud(0.0, transform_points(T_lidar_field, pts))
+    T_cam_field = invert_T(T_field_cam)
+
+    def box(c, h):
+        ang = np.linspace(0, 2 * np.pi, 32)
+        p = np.vstack([np.column_stack([c[0] + 0.25 * np.cos(ang), c[1] + 0.25 * np.sin(ang), np.full(32, z)]) for z in (0.0, h)])
+        uv, _ = pipe.camera.project(transform_points(T_cam_field, p))
+        return np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
+
+    boxes = np.array([box(c_near, 1.2), box(c_far, 0.45)])
+    assert boxes[0, 3] > boxes[1, 3] and boxes[0, 1] < boxes[1, 3]  # the near robot hides the far one's lower part
+    z_near, z_far = transform_points(T_cam_field, np.array([[*(c - 0.2 * ahead), 0.3] for c in (c_near, c_far)]))[:, 2]
+    alone, _ = pipe._box_depths(boxes[1:], 0.0)  # the near box not given: its robot's pixels win
+    with_frame, _ = pipe._box_depths(boxes[1:], 0.0, frame_boxes=boxes)
+    assert abs(alone[0] - z_near) < 0.3
+    assert abs(with_frame[0] - z_far) < 0.3
