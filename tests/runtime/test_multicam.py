@@ -168,3 +168,20 @@ def test_box_depth_excludes_a_nearer_robot_whose_box_is_not_located():
     with_frame, _ = pipe._box_depths(boxes[1:], 0.0, frame_boxes=boxes)
     assert abs(alone[0] - z_near) < 0.3
     assert abs(with_frame[0] - z_far) < 0.3
+
+
+def test_a_lost_track_does_not_jump_farther_than_a_robot_can_move():
+    """B13 of the benchmark: a track lost for 1.5 s (its covariance says a 10 m gate) took a cluster 8.7 m away and,
+    with its undecayed votes, the label of the robot tracked there. A robot moves at most ``vmax`` (4.5 m/s)."""
+    tk = Tracker3D()
+    tr = _coasting(tk, (14.1, 10.1), "blue_4")
+    tr.t_seen = tr.t = 1.0
+    tr.P = np.diag([4.0, 4.0, 9.0, 9.0])  # what 1.5 s of coasting leaves
+    far = np.array([19.7, 3.5])  # 8.6 m: more than 0.8 + 4.5 * 1.5 m
+    near = np.array([16.0, 8.0])  # 2.8 m: within reach
+    g = tk._gate(tr, np.array([0.05, 0.05]), np.array([2.5, 2.5]))
+    assert np.linalg.norm(far - tr.x[:2]) > g[0] and np.linalg.norm(near - tr.x[:2]) < g[1]
+    assert g[0] == pytest.approx(0.8 + 4.5 * 1.5 + 3 * np.hypot(0.05, 0.1))
+    fresh = _coasting(tk, (5.0, 5.0), "red_1")  # a track measured now keeps its covariance gate
+    fresh.t_seen = fresh.t = 2.5
+    assert tk._gate(fresh, np.array([0.05]), np.array([2.5]))[0] == pytest.approx(0.8 + 3 * np.sqrt(0.05**2 + 0.05**2))
