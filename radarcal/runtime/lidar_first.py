@@ -86,6 +86,7 @@ class LidarFirst:
         self.shadow_boxes: dict[str, int] = {}
         self.shadow_t = -np.inf
         self._proxy_ids: dict[str, int] = {}
+        self._shadow_ok: set[str] = set()
         self.clouds = 0
 
     # --- clouds ----------------------------------------------------------------------------------------------------
@@ -280,7 +281,11 @@ class LidarFirst:
         res = [tr for tr in out if tr.label is None]
         keep = set()
         n_min = self.tracker.confirm_box_hits  # one box never makes a robot (a false positive, a 3<->4 swap)
-        shadow = {lab: s for lab, s in self.shadow.tracks.items() if s.n_updates >= n_min}
+        # a label counts from its third consistent fix on, also after the box path restarted its track (its first
+        # LiDAR depth moving a ground-ray track, a respawn) as long as the label stays tracked
+        self._shadow_ok = {lab for lab in self._shadow_ok if lab in self.shadow.tracks}
+        self._shadow_ok |= {lab for lab, s in self.shadow.tracks.items() if s.n_updates >= n_min}
+        shadow = {lab: s for lab, s in self.shadow.tracks.items() if lab in self._shadow_ok}
         for lab, tr in by_label.items():
             s = shadow.get(lab)
             if s is None or (self.seen_source(tr, t) == "lidar" and not self._box_better(tr, s, t, lab in boxed)):
