@@ -3,6 +3,7 @@
     PYTHONPATH=$PWD python -m benchmarks lidar_first              # both parts
     PYTHONPATH=$PWD python -m benchmarks.lidar_first cost         # 100 k-point cloud filtered+clustered+tracked; per frame
     PYTHONPATH=$PWD python -m benchmarks.lidar_first accuracy DIR # `radarcal synth match` replays (made in DIR if missing)
+    PYTHONPATH=$PWD python -m benchmarks.lidar_first accuracy DIR --all-seeds  # + seeds 1, 7 (300 frames), 8, 9, 10
 
 * cost, pinned to ONE core (``os.sched_setaffinity``): a `radarcal synth match` replay (seed 2, 10 robots + people +
   perimeter) fired at 100 k points per 0.1 s sweep (``--lidar-points 100000``), its 21 sweeps in order (robots
@@ -123,12 +124,15 @@ def _row(name: str, a: dict) -> str:
             f"{f(a['wrong_label_pct'], 2)} % | {a['missing']} / {a['visible']} | {f(a['lidar_within_0.3m_pct'], 1)} % | {f(a['longest_ghost_s'], 2)} s |")  # fmt: skip
 
 
-def accuracy(folder: str | None = None) -> None:
+def accuracy(folder: str | None = None, all_seeds: bool = False) -> None:
     base = Path(folder) if folder else Path(tempfile.mkdtemp(prefix="lf_acc_"))
     base.mkdir(parents=True, exist_ok=True)
     print("| replay / mode | right label within 0.6 m | p95 error | median | false robots / frame | wrong label | missing / visible | any track within 0.3 m (LiDAR-seen) | longest ghost |")
     print("|---|---|---|---|---|---|---|---|---|")
     reps = [(f"seed {s}", _make(base / f"m{s}", s)) for s in SEEDS] + [("occlusion (seed 4)", _make(base / "occ", 4, scenario="occlusion"))]
+    if all_seeds:  # the tuning seed, the hardest one and three fresh ones (docs/runtime.md)
+        reps += [("seed 1 (tuning)", _make(base / "m1", 1)), ("seed 7, 300 frames", _make(base / "m7", 7, frames=300))]
+        reps += [(f"seed {s} (fresh)", _make(base / f"m{s}", s)) for s in (8, 9, 10)]
     for name, rep in reps:
         for mode in ("auto", "box"):
             print(_row(f"{name} `--localise {mode}`", _run(rep, "--localise", mode)["accuracy"]), flush=True)
@@ -140,7 +144,8 @@ def main(argv: list[str]) -> int:
     if what in ("cost", "all"):
         cost()
     if what in ("accuracy", "all"):
-        accuracy(argv[1] if len(argv) > 1 else None)
+        rest = [a for a in argv[1:] if a != "--all-seeds"]
+        accuracy(rest[0] if rest else None, "--all-seeds" in argv)
     return 0
 
 

@@ -101,6 +101,14 @@ class Localiser:
         self.cam_origin = self.T_field_cam[:3, 3].copy()
         self.ray_table = RayTable(camera)
 
+    def outside_field(self, p: np.ndarray) -> np.ndarray:
+        """(K,) True where the field point's xy lies beyond the field's boundary (never without a field model)."""
+        size = getattr(self.field, "size", None) if self.field is not None else None
+        if size is None:
+            return np.zeros(len(p), bool)
+        x, y = p[:, 0], p[:, 1]
+        return np.isfinite(x) & ((x < 0) | (x > size[0]) | (y < 0) | (y > size[1]))
+
     def surface_z(self, xy: np.ndarray) -> np.ndarray:
         xy = np.asarray(xy, float).reshape(-1, 2)
         if self.field is None:
@@ -157,6 +165,11 @@ class Localiser:
         if has.any():
             uv = np.column_stack([cx[has], (boxes[has, 1] + boxes[has, 3]) / 2])
             p[has] = self.from_depth(uv, depth_z[has])
+            # a robot's centre is inside the field: a depth that puts it beyond the boundary came from the perimeter
+            # wall (or the crowd) behind a robot the LiDAR missed, so that box takes the ground ray instead
+            out = self.outside_field(p) & has
+            has &= ~out
+            p[out] = np.nan
             src[has] = "depth"
             ds = np.asarray(depth_sigma, float).reshape(-1)[has] if depth_sigma is not None else np.full(has.sum(), 0.05)
             # along-ray depth error + lateral pixel error (small) + the radius model (robots are not cylinders)
