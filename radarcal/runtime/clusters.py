@@ -35,13 +35,10 @@ class ClusterParams:
     max_bottom_m: float = 0.6  # a ground robot's lowest point above the surface (lower parts may be filtered/hidden)
     aerial_min_m: float = 0.9  # an aerial robot's lowest point above the surface
     aerial_extent_m: float = 0.9
-    aerial_foot_m: tuple[float, float] = (0.2, 1.4)  # (0 would take the few returns of one rosette pass: measured worse, docs)
     split_m: float = 0.95
     merge_gap_m: float = 0.3
     merge_max_m: float = 0.75
     robot_m: float = 0.65
-    width_m: float = 0.55  # a ground robot's width across the view (0.5-0.6 m robots): returns spanning less leave the centre uncertain
-    aerial_width_m: float = 0.8
     push_aerial_m: float = 0.4  # the aerial robot is ~0.8 m across
     push_face_m: float = 0.30  # nearest return -> centre along the view (0.5 m robots at a random heading: 0.32 on average)
 
@@ -61,14 +58,6 @@ class Clusters:
     aerial: np.ndarray
     range_m: np.ndarray
     labels: np.ndarray
-    shape_sigma: np.ndarray | None = None  # (K,) m: where in the robot's unseen width the centre may be (see cluster_points)
-    across: np.ndarray | None = None  # (K,2) unit horizontal direction across the view (the direction of shape_sigma)
-
-    def shape_cov(self) -> np.ndarray:
-        """(K,2,2) field xy covariance of the centre from the unseen width: ``shape_sigma**2`` across the view only."""
-        if self.shape_sigma is None:
-            return np.zeros((len(self), 2, 2))
-        return self.shape_sigma[:, None, None] ** 2 * self.across[:, :, None] * self.across[:, None, :]
 
     def __len__(self) -> int:
         return len(self.n)
@@ -225,7 +214,7 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     bottom = lo[:, 2] - smin
     need = np.round(np.interp(rng, [q.loose_range_m * 0.6, 25.0], [q.min_points_near, q.min_points_far])).astype(int)
     ground = (foot >= q.footprint_m[0]) & (foot <= q.footprint_m[1]) & (top >= q.height_m[0]) & (top <= q.height_m[1]) & (bottom <= q.max_bottom_m)
-    aerial = (bottom >= q.aerial_min_m) & (foot >= q.aerial_foot_m[0]) & (foot <= q.aerial_foot_m[1]) & (hi[:, 2] - lo[:, 2] <= q.aerial_extent_m)
+    aerial = (bottom >= q.aerial_min_m) & (foot >= 0.2) & (foot <= 1.4) & (hi[:, 2] - lo[:, 2] <= q.aerial_extent_m)
     ok = (ground | aerial) & (n >= need)
     keep = np.flatnonzero(ok)
     remap = np.full(nc, -1)
@@ -244,13 +233,4 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     target = np.maximum(0.5 * (amin + amax), amin + np.where(aerial, q.push_aerial_m, q.push_face_m))[keep]
     cen_along = np.einsum("ij,ij->i", cen[keep, :2], v)
     centre = np.column_stack([cen[keep, :2] + v * (target - cen_along)[:, None], np.where(aerial[keep], 0.5 * (lo[keep, 2] + hi[keep, 2]), smin[keep])])
-    # returns spanning e across the view of a robot W wide: its centre is anywhere in the W - e not seen, uniformly
-    # (a few returns of one rosette pass on the 0.8 m aerial robot leave +-0.4 m); the tracker weighs the fix by it
-    across = np.column_stack([-v_all[:, 1], v_all[:, 0]])
-    cross = np.einsum("ij,ij->i", p[:, :2], across[comp])
-    cmin = np.full(nc, np.inf)
-    cmax = np.full(nc, -np.inf)
-    np.minimum.at(cmin, comp, cross)
-    np.maximum.at(cmax, comp, cross)
-    unseen = np.maximum(np.where(aerial, q.aerial_width_m, q.width_m) - (cmax - cmin), 0.0)[keep]
-    return Clusters(centre, cen[keep], lo[keep], hi[keep], n[keep], tm[keep], aerial[keep], rng[keep], remap[comp], unseen / np.sqrt(12.0), across[keep])
+    return Clusters(centre, cen[keep], lo[keep], hi[keep], n[keep], tm[keep], aerial[keep], rng[keep], remap[comp])

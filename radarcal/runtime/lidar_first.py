@@ -126,7 +126,7 @@ class LidarFirst:
             sigma = np.sqrt(0.05**2 + s**2 + (0.15 / np.sqrt(cl.n)) ** 2)
             ext = cl.hi - cl.lo
             hulls = [(cl.lo[j].copy(), cl.hi[j].copy()) for j in range(len(cl))]
-            self.tracker.update_clusters(cl.centre, sigma, cl.t, cl.aerial, ext, hulls, t_ref, cov=cl.shape_cov())
+            self.tracker.update_clusters(cl.centre, sigma, cl.t, cl.aerial, ext, hulls, t_ref)
 
     # --- camera frames ---------------------------------------------------------------------------------------------
     def track_hulls(self, t: float) -> tuple[list[Track3D], np.ndarray, np.ndarray]:

@@ -247,14 +247,12 @@ class Tracker3D:
         dt = np.array([t - tr.t for tr in self.tracks])
         return X[:, :2] + X[:, 2:] * dt[:, None]
 
-    def _update(self, tr: Track3D, xy: np.ndarray, sigma: float, t: float, z: float, source: str, cov: np.ndarray | None = None) -> None:
-        """Kalman update with a fix ``xy`` of isotropic ``sigma`` plus an optional (2,2) ``cov`` (a cluster's unseen
-        width across the view)."""
+    def _update(self, tr: Track3D, xy: np.ndarray, sigma: float, t: float, z: float, source: str) -> None:
         if t < tr.t:  # a measurement older than the state (late cloud after a box fix): apply it at the state time
             xy = xy + tr.x[2:] * (tr.t - t)
             t = tr.t
         self.predict_to(tr, t)
-        R = np.eye(2) * sigma**2 + (cov if cov is not None else 0.0)
+        R = np.eye(2) * sigma**2
         S = tr.P[:2, :2] + R
         K = tr.P[:, :2] @ np.linalg.inv(S)
         tr.x = tr.x + K @ (xy - tr.x[:2])
@@ -279,9 +277,9 @@ class Tracker3D:
 
     # --- LiDAR clusters ---
     def update_clusters(self, centre: np.ndarray, sigma: np.ndarray, t: np.ndarray, aerial: np.ndarray, extent: np.ndarray,
-                        hulls: list[tuple], t_ref: float, cov: np.ndarray | None = None) -> list[int]:  # fmt: skip
-        """Assign clusters (K,3 centres, K sigma, K times; ``cov`` (K,2,2) extra xy covariance of each centre, e.g.
-        :meth:`Clusters.shape_cov`) to tracks; start tentative tracks for the rest. Returns the track id per cluster."""
+                        hulls: list[tuple], t_ref: float) -> list[int]:  # fmt: skip
+        """Assign clusters (K,3 centres, K sigma, K times) to tracks; start tentative tracks for the rest. Returns the
+        track id per cluster."""
         from scipy.optimize import linear_sum_assignment
 
         K = len(centre)
@@ -292,8 +290,7 @@ class Tracker3D:
         if K and live:
             pred = self.predicted_xy(float(np.mean(t)))
             d = np.linalg.norm(pred[:, None, :] - centre[None, :, :2], axis=2)  # (T,K)
-            sg = sigma if cov is None else np.sqrt(sigma**2 + np.trace(cov, axis1=1, axis2=2))
-            gate = np.stack([self._gate(tr, sg, t) for tr in live])
+            gate = np.stack([self._gate(tr, sigma, t) for tr in live])
             air = np.array([tr.aerial for tr in live])
             bad = (d > gate) | (air[:, None] != aerial[None, :])
             cost = np.where(bad, 1e6, d + np.array([0.0 if tr.state != TENTATIVE else 0.3 for tr in live])[:, None])
@@ -302,7 +299,7 @@ class Tracker3D:
                 if cost[i, j] >= 1e6:
                     continue
                 tr = live[i]
-                self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar", None if cov is None else cov[j])
+                self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
                 tr.t_lidar = max(tr.t_lidar, float(t[j]))
                 tr.n_lidar += 1
                 tr.extent = 0.7 * tr.extent + 0.3 * extent[j]
