@@ -15,7 +15,11 @@
 * accuracy: `radarcal run --localise auto` and `--localise box` on three `radarcal synth match` replays (seeds 2, 3,
   5; 450 frames; visible-part boxes with jitter, misses, false positives and 3<->4 swaps; late clouds fired point by
   point; T_cam_lidar off 0.3 deg / 2 cm; field pose from a 1.5 px four-point PnP), the occlusion replay (seed 4),
-  and LiDAR only (``--no-camera``).
+  and LiDAR only (``--no-camera``); then LiDAR only on seeds 8, 9, 10 (held out: never looked at while tuning).
+  LiDAR only twice per replay: with the replay's bundle, whose LiDAR field pose is the chain field-pnp ·
+  T_cam_lidar (0.1-0.4 deg off), and with the LiDAR registered to the field as a station does it
+  (``radarcal lidar-field`` on the replay's first 3 s of clouds, into a copy of the bundle; ``run --field-pose auto``
+  then uses it); the pose error of both against the replay's truth is printed.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SEEDS = (2, 3, 5)
+HELD_OUT = (8, 9, 10)  # LiDAR-only rows on replays never looked at while tuning
 
 
 def _pin_one_core() -> str:
@@ -124,6 +129,45 @@ def _row(name: str, a: dict) -> str:
             f"{f(a['wrong_label_pct'], 2)} % | {a['missing']} / {a['visible']} | {f(a['lidar_within_0.3m_pct'], 1)} % | {f(a['longest_ghost_s'], 2)} s |")  # fmt: skip
 
 
+def registered_bundle(rep: Path, clouds: int = 30) -> Path:
+    """``rep/calib_lidarfield.yaml``: the replay's bundle plus ``T_field_lidar0`` from ``radarcal lidar-field`` on the
+    first ``clouds`` clouds (3 s) accumulated, as a station registers its LiDAR to the field before the match."""
+    from radarcal.cli.main import main as cli
+    from radarcal.io.clouds import read_cloud
+
+    out = rep / "calib_lidarfield.yaml"
+    if out.is_file():
+        return out
+    files = sorted(f for f in (rep / "clouds").iterdir() if f.suffix in (".pcd", ".npy", ".bin", ".ply"))[:clouds]
+    acc = rep / f"first{clouds}_clouds.npy"
+    np.save(acc, np.vstack([np.asarray(read_cloud(f).points, np.float32) for f in files]))
+    tmp = rep / "calib_lidarfield.tmp.yaml"
+    tmp.write_bytes((rep / "calib.yaml").read_bytes())
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert cli(["lidar-field", "--bundle", str(tmp), "--lidar", "lidar0", "--cloud", str(acc), "--field", json.loads((rep / "meta.json").read_text())["field"], "--json"]) == 0
+    tmp.replace(out)
+    return out
+
+
+def lidar_pose_errors(rep: Path) -> str:
+    """Error of the replay bundle's LiDAR field pose (field-pnp chain) and of the lidar-field one against the truth:
+    degrees, cm, and the horizontal error of a point 0.2 m up at 20 m."""
+    from radarcal.bundle import load_bundle
+    from radarcal.geometry import invert_T
+
+    truth = json.loads((rep / "truth.json").read_text())
+    T_true = np.asarray(truth["T_field_cam0"], float) @ np.asarray(truth["T_cam0_lidar0"], float)
+    b0, b1 = load_bundle(rep / "calib.yaml"), load_bundle(registered_bundle(rep))
+    out = []
+    for name, T in (("field-pnp chain", b0.T("field", "cam0") @ b0.T("cam0", "lidar0")), ("lidar-field", b1.transforms["T_field_lidar0"].T)):
+        dT = invert_T(T_true) @ np.asarray(T, float)
+        deg = float(np.degrees(np.arccos(np.clip((np.trace(dT[:3, :3]) - 1) / 2, -1, 1))))
+        p = invert_T(T_true) @ np.r_[(T_true @ np.r_[20.0, 0, 0, 1])[:2], 0.2, 1]
+        e20 = float(np.linalg.norm((np.asarray(T, float) @ p)[:2] - (T_true @ p)[:2]))
+        out.append(f"{name} {deg:.3f} deg / {100 * np.linalg.norm(dT[:3, 3]):.1f} cm ({100 * e20:.1f} cm at 20 m)")
+    return "; ".join(out)
+
+
 def accuracy(folder: str | None = None, all_seeds: bool = False) -> None:
     base = Path(folder) if folder else Path(tempfile.mkdtemp(prefix="lf_acc_"))
     base.mkdir(parents=True, exist_ok=True)
@@ -133,10 +177,21 @@ def accuracy(folder: str | None = None, all_seeds: bool = False) -> None:
     if all_seeds:  # the tuning seed, the hardest one and three fresh ones (docs/runtime.md)
         reps += [("seed 1 (tuning)", _make(base / "m1", 1)), ("seed 7, 300 frames", _make(base / "m7", 7, frames=300))]
         reps += [(f"seed {s} (fresh)", _make(base / f"m{s}", s)) for s in (8, 9, 10)]
+    poses = []
     for name, rep in reps:
         for mode in ("auto", "box"):
             print(_row(f"{name} `--localise {mode}`", _run(rep, "--localise", mode)["accuracy"]), flush=True)
         print(_row(f"{name} LiDAR only (`--no-camera`)", _run(rep, "--no-camera")["accuracy"]), flush=True)
+        print(_row(f"{name} LiDAR only, LiDAR registered (lidar-field)", _run(rep, "--no-camera", "--bundle", str(registered_bundle(rep)))["accuracy"]), flush=True)
+        poses.append((name, rep))
+    for s in () if all_seeds else HELD_OUT:  # --all-seeds already ran them in every mode
+        rep = _make(base / f"m{s}", s)
+        print(_row(f"seed {s} (held out) LiDAR only (`--no-camera`)", _run(rep, "--no-camera")["accuracy"]), flush=True)
+        print(_row(f"seed {s} (held out) LiDAR only, LiDAR registered (lidar-field)", _run(rep, "--no-camera", "--bundle", str(registered_bundle(rep)))["accuracy"]), flush=True)
+        poses.append((f"seed {s}", rep))
+    print("\nLiDAR field pose against the truth (the replay bundle's chain vs lidar-field on the first 3 s):")
+    for name, rep in poses:
+        print(f"  {name}: {lidar_pose_errors(rep)}", flush=True)
 
 
 def main(argv: list[str]) -> int:

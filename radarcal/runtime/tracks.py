@@ -146,19 +146,25 @@ class Track3D:
 
     outranked_t: float = -np.inf  # frame time at which another entry of the same robot outranked it (LidarFirst.one_per_robot)
     ever_moved: bool = False
-    MOVED_M = 1.0  # displacement from where the track started that counts as moving (clutter jitters by up to 0.5 m)
+    static_suspect: bool = False  # born where something already stood: in the first seconds of the run (Tracker3D.learn_s)
+    envelope: np.ndarray | None = None  # (4,) x0, y0, x1, y1: union of every cluster's points (field frame) so far
+    MOVED_M = 1.0  # displacement from where a static suspect started that counts as moving (clutter jitters by up to 0.5 m)
+    STATIC_EXTENT_M = 0.75  # an envelope wider than any robot (0.8 m) and its noise: the points have swept over the field
 
     @property
     def moved(self) -> bool:
         if not self.ever_moved and self.origin is not None and float(np.linalg.norm(self.x[:2] - self.origin)) > self.MOVED_M:
             self.ever_moved = True
+        if not self.ever_moved and self.envelope is not None and float(np.max(self.envelope[2:] - self.envelope[:2])) > self.STATIC_EXTENT_M:
+            self.ever_moved = True
         return self.ever_moved
 
     @property
     def evidence(self) -> bool:
-        """Named by a box or seen moving: a cluster that never moved and was never boxed is more likely something
-        static the learnt background has not absorbed yet (a referee's box) than a robot."""
-        return self.label is not None or self.moved
+        """Named by a box, or a cluster that came where nothing stood before, or a static suspect seen moving: a
+        cluster present from the first seconds that never moved and was never boxed is as likely something static
+        the learnt background has not absorbed yet (a referee's box) as a robot."""
+        return self.label is not None or not self.static_suspect or self.moved
 
     @property
     def xy(self) -> np.ndarray:
@@ -221,6 +227,8 @@ class Tracker3D:
         self.init_speed_sigma = float(init_speed_sigma)
         self.reacquire_m = 2.0
         self.coast_damping_s = 0.5
+        self.learn_s = 2.0  # tracks born within this long of the first cluster are static suspects (Track3D.evidence)
+        self.t0: float | None = None
         self.tracks: list[Track3D] = []
         self._next = 1
 
@@ -279,6 +287,8 @@ class Tracker3D:
 
         K = len(centre)
         ids = [-1] * K
+        if K and self.t0 is None:
+            self.t0 = float(np.min(t))
         live = [tr for tr in self.tracks]
         if K and live:
             pred = self.predicted_xy(float(np.mean(t)))
@@ -297,11 +307,15 @@ class Tracker3D:
                 tr.n_lidar += 1
                 tr.extent = 0.7 * tr.extent + 0.3 * extent[j]
                 tr.hull, tr.t_points = hulls[j], float(t_ref)
+                if tr.envelope is not None:
+                    tr.envelope = np.r_[np.minimum(tr.envelope[:2], hulls[j][0][:2]), np.maximum(tr.envelope[2:], hulls[j][1][:2])]
                 ids[j] = tr.id
         for j in range(K):
             if ids[j] < 0:
                 tr = self._new(centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
                 tr.hits, tr.n_lidar, tr.t_lidar, tr.aerial = 1, 1, float(t[j]), bool(aerial[j])
+                tr.static_suspect = float(t[j]) - self.t0 < self.learn_s
+                tr.envelope = np.r_[hulls[j][0][:2], hulls[j][1][:2]].astype(float)
                 tr.extent = np.asarray(extent[j], float).copy()
                 tr.hull, tr.t_points = hulls[j], float(t_ref)
                 ids[j] = tr.id

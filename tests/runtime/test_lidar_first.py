@@ -198,3 +198,33 @@ def test_one_measured_entry_per_robot():
     assert lf.seen_source(b2, t + 0.033) == "depth"  # the next frame it is ranked again (no lasting state)
     lf.cfg.exclusion_m = 0.0
     assert [tr.id for tr in lf.one_per_robot(list(tk.tracks), t + 0.033)] == [tr.id for tr in tk.tracks]
+
+
+def test_static_suspects_standing_robots_are_reported_a_standing_box_from_the_start_is_not():
+    """Replaces the moved-1-m rule: only what stood there from the first seconds (Tracker3D.learn_s) must move to be
+    reported; a robot that arrives later and stands still is reported at once; the points' envelope growing past a
+    robot's size counts as moving (a box's cluster centre jitters, its points stay on the box)."""
+    rng = np.random.default_rng(7)
+    tk = Tracker3D()
+    box_c = np.array([27.2, 0.6])
+
+    def hull(c, half=0.22):
+        return (np.r_[c - half, 0.0], np.r_[c + half, 0.45])
+
+    for k in range(60):  # 6 s at 10 Hz
+        t = 0.1 * k
+        cs, hs = [box_c + rng.normal(0, 0.12, 2)], [hull(box_c, 0.2)]  # static box: centre jitters, points stay on it
+        walker = np.array([8.0 + 1.2 * t, 5.0])  # present from the start, moving
+        cs.append(walker), hs.append(hull(walker))
+        if t >= 3.0:
+            cs.append(np.array([14.0, 9.0])), hs.append(hull(np.array([14.0, 9.0])))  # arrives at 3 s, stands
+        c = np.column_stack([np.array(cs), np.zeros(len(cs))])
+        tk.update_clusters(c, np.full(len(c), 0.1), np.full(len(c), t), np.zeros(len(c), bool), np.tile([0.5, 0.5, 0.45], (len(c), 1)), hs, t)
+        tk.step(t)
+        rep = [tr for tr in tk.tracks if tr.state != TENTATIVE and tr.evidence]
+        near = lambda p: [tr for tr in rep if np.linalg.norm(tr.x[:2] - p) < 0.5]  # noqa: E731
+        assert not near(box_c), (t, [tr.x for tr in near(box_c)])
+        if t >= 0.6:  # 0.7 m travelled: the envelope of its points is wider than a robot
+            assert near(walker), t
+        if t >= 3.15:  # confirmed on its second cloud: reported although it never moved
+            assert near(np.array([14.0, 9.0])), t

@@ -62,7 +62,7 @@ def test_realistic_replay_auto_box_and_lidar_only(tmp_path, capsys):
     assert auto["false_per_frame"] < 0.15 and auto["longest_ghost_s"] < 1.0
     assert box["right_within_0.6m_pct"] > 75
     assert lidar["longest_ghost_s"] < 1.0 and lidar["false_per_frame"] < 0.4  # people at the boundary never become robots
-    assert lidar["lidar_within_0.3m_pct"] > 40  # measured 46-70 % (goal 95 %: not met, docs/runtime.md)
+    assert lidar["lidar_within_0.3m_pct"] > 50  # seed 7: 53.0 % (48.7 % with the moved-1-m rule); 57-80 % on other seeds (goal 95 %: not met, docs/runtime.md)
 
 
 def test_one_robot_is_never_on_the_referee_map_twice(tmp_path, capsys):
