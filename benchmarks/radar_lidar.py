@@ -129,13 +129,14 @@ def tudelft(root) -> dict:
 
 
 def main(argv: list[str]) -> int:
-    if argv and argv[0] == "features":  # python -m benchmarks.radar_lidar features [n_seeds]
+    if argv and argv[0] == "features":  # python -m benchmarks.radar_lidar features [n_seeds [first_seed]]
         import tempfile
 
         k = int(argv[1]) if len(argv) > 1 else 6
+        s0 = int(argv[2]) if len(argv) > 2 else 100
         with tempfile.TemporaryDirectory() as tmp:
             for fam in ("tune", "check"):
-                print_feature_benchmark(feature_benchmark(fam, range(100, 100 + k), Path(tmp)))
+                print_feature_benchmark(feature_benchmark(fam, range(s0, s0 + k), Path(tmp)))
         return 0
     n = int(argv[0]) if argv else 200
     print(f"Monte Carlo: 1 radar, N = 4 reflectors, full pipeline (synthetic cloud -> extraction -> NLS), {n} runs each")
@@ -257,7 +258,7 @@ def feature_benchmark(family: str, seeds, workdir: Path) -> dict:
 
 
 def print_feature_benchmark(b: dict) -> None:
-    print(f"\nfamily {b['family']!r}: {len(b['runs'])} sessions (tripod legs, turned reflectors, low-RCS clutter, multipath, ground-and-wall, 2nd LiDAR yawed 70 deg)")
+    print(f"\nfamily {b['family']!r}: {len(b['runs'])} sessions, seeds {b['runs'][0]['seed']}-{b['runs'][-1]['seed']} (tripod legs, turned reflectors, low-RCS clutter, multipath, ground-and-wall, 2nd LiDAR yawed 70 deg)")
     print(f"  {'radar':>13} | {'RMS yaw':>8} {'ideal':>7} {'ratio':>5} | {'RMS pos':>8} {'ideal':>7} {'ratio':>5}")
     for n, d in b["radars"].items():
         print(f"  {n:>13} | {d['rms_deg']:7.3f}° {d['ideal_rms_deg']:6.3f}° {d['ratio_deg']:5.2f} | {100 * d['rms_m']:6.2f}cm {100 * d['ideal_rms_m']:5.2f}cm {d['ratio_m']:5.2f}")

@@ -94,18 +94,45 @@ def test_lidar_lateral_unobserved_without_reflectors_observed_with():
 @pytest.mark.slow
 @pytest.mark.parametrize("family", ["tune", "check"])
 def test_feature_sessions_against_the_ideal_fit_never_stored_wrong(family, tmp_path):
-    """docs/radar_lidar.md, `python -m benchmarks.radar_lidar features 6`: tune family within 1.2x the ideal fit for
-    every radar; the check family's middle radar too, its +-50 deg side radars measured at 1.2-1.65x (issue 18's 1.2x
-    is not met there: a turned reflector weaker than a tripod foot's clutter is sometimes matched to the foot)."""
+    """docs/radar_lidar.md, `python -m benchmarks.radar_lidar features 6`: every radar of both families within 1.2x
+    the ideal fit (issue 18), the truth within 3 sigma >= 95 %, the second LiDAR never stored wrong."""
     from benchmarks.radar_lidar import feature_benchmark
 
     b = feature_benchmark(family, range(100, 106), tmp_path)
     for name, d in b["radars"].items():
         assert d["n"] == 6, name
-        bound = 1.2 if family == "tune" or name == "radar_middle" else 1.8
-        assert d["ratio_deg"] <= bound and d["ratio_m"] <= bound, (name, d)
+        assert d["ratio_deg"] <= 1.2 and d["ratio_m"] <= 1.2, (name, d)
     assert b["lidar_stored_wrong"] == 0
     assert (b["lidar_stored_ok"] == 6) if family == "tune" else (b["lidar_refused"] == 6)  # check: a 70 deg FOV sees no reflector
     for _, _, d in b["lidars"]:
         assert d["refused"] is None or "is not observed" in d["refused"]
     assert np.all(b["coverage_3sigma"] >= 0.95), b["coverage_3sigma"]
+
+
+def test_frame_averages_are_inverse_variance_means():
+    """A weak echo merged into a reflector's cluster (one frame of a ghost or clutter 25 cm off, 15 dB weaker) moves
+    the average by its share of the weight only, and the cluster's RCS is the power mean."""
+    xy = np.array([[3.0, 0.0], [3.0, 0.0], [3.0, 0.0], [3.25, 0.0]])
+    rcs = np.array([10.0, 10.0, 10.0, -5.0])
+    m, c, r = aggregate_frames(xy, rcs=rcs)
+    w = 10 ** (-1.5)
+    assert len(m) == 1 and c.tolist() == [4]
+    assert m[0, 0] == pytest.approx(3.0 + 0.25 * w / (3 + w), abs=1e-12)  # arithmetic mean: 3.0625
+    assert r[0] == pytest.approx(10 + 10 * np.log10((3 + w) / 4), abs=1e-9)
+
+
+def test_rcs_scaled_association_takes_split_frames_drops_ghosts():
+    """Two reflectors predicted at known points: a turned reflector's weak frames scattered 0.5 m (its sigma at
+    -8 dBsm is 8x a 10 dBsm echo's) are all taken, a strong detection as far off is not, and a detection behind a
+    reflector on its ray, 8 dB weaker than the reflector's own (its multipath ghost), is dropped."""
+    from radarcal.extrinsics.radar.rig import _associate
+
+    pred = np.array([[3.0, 1.0], [3.0, -1.0]])
+    m = np.array([[3.0, 1.02],     # 0: reflector 0 (turned, 0 dBsm)
+                  [3.45, 1.15],    # 1: reflector 0's ghost: same ray, farther, 8 dB weaker -> dropped
+                  [3.0, -1.45],    # 2: reflector 1, weak frame 45 cm off -> taken (sigma 0.16 m)
+                  [2.6, -0.8],     # 3: reflector 1, weak frame 45 cm off the other way -> taken
+                  [3.5, -1.0]])    # 4: strong, 50 cm off reflector 1 -> not taken (sigma 2 cm)
+    rcs = np.array([0.0, -8.0, -8.0, -8.0, 10.0])
+    pairs = _associate(pred, m, rcs, np.ones(5), gate=0.35, sigma_unit=0.02, rcs_ref=10.0)
+    assert {tuple(p) for p in pairs.tolist()} == {(0, 0), (1, 2), (1, 3)}

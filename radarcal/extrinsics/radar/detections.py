@@ -19,8 +19,9 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
 
     With ``rcs`` (dBsm per detection) a cluster whose RCS values form two classes more than ``rcs_split_db`` (and
     3 within-class sigma) apart is split in two (a ground-bounce multipath ghost sits a few decimetres behind its reflector, ~8 dB weaker, and would
-    otherwise be averaged into it), and the mean RCS of each cluster is returned too. Returns (means (K,2),
-    counts (K,)) or, with ``rcs``, (means, counts, mean RCS (K,))."""
+    otherwise be averaged into it); the means are then inverse-variance means (weights ``10^(RCS/10)``) and each
+    cluster's RCS is the power mean (``n`` frames at it carry the cluster's total weight). Returns (means (K,2),
+    counts (K,)) or, with ``rcs``, (means, counts, RCS (K,))."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     if len(xy) == 0:
         return (xy, np.zeros(0, int)) if rcs is None else (xy, np.zeros(0, int), np.zeros(0))
@@ -52,13 +53,17 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
                 queue += [c, ncomp]
                 ncomp += 1
     counts = np.bincount(lab, minlength=ncomp)
+    # with RCS: inverse-variance means (a radar's position variance ~ 1 / SNR ~ 10^(-RCS/10)), so a weak echo merged
+    # into a reflector's cluster (a ghost, clutter, a frame of a turned reflector) counts as little as its noise says
+    w = np.ones(len(xy)) if rcs is None else 10 ** ((rc - rc.max()) / 10)
+    wsum = np.bincount(lab, weights=w, minlength=ncomp)
     sums = np.zeros((ncomp, 2))
-    np.add.at(sums, lab, xy)
-    means = sums / counts[:, None]
+    np.add.at(sums, lab, xy * w[:, None])
+    means = sums / wsum[:, None]
     keep = counts >= max(1, min_fraction * counts.max())
     if rcs is None:
         return means[keep], counts[keep]
-    rmean = np.bincount(lab, weights=rc, minlength=ncomp) / counts
+    rmean = rc.max() + 10 * np.log10(wsum / counts)  # power mean: n frames at this RCS carry the cluster's total weight
     return means[keep], counts[keep], rmean[keep]
 
 

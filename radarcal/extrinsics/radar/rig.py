@@ -102,9 +102,11 @@ class RigCalibration:
     notes: list
 
 
-def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant):
-    """Mutual-NN matches of one radar's detections with the LiDAR reflectors under ``pose_G`` (T_G_radar); the
-    matched detections' RCS (NaN when unknown) is the fifth return value."""
+def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant, scale=None):
+    """Matches of one radar's detections with the LiDAR reflectors under ``pose_G`` (T_G_radar): mutual nearest
+    neighbours within ``gate`` or, with ``scale`` = (unit-weight sigma, reference RCS), every detection to its
+    nearest reflector within its own RCS-scaled gate (:func:`_associate`). The matched detections' RCS (NaN when
+    unknown) is the fifth return value, the frames averaged into each the sixth."""
     src, dst, z, info, rcs, cnt = [], [], [], [], [], []
     inv = pose_G.inverse()
     for si, sc in enumerate(scenes):
@@ -114,9 +116,12 @@ def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant):
             continue
         q = inv.apply(pg[:, :2])
         pred = slant_predict(q, pg[:, 2] - mount_h) if slant else q
-        pairs = mutual_nn(pred, m, gate)
         rc = (sc.radar_rcs or {}).get(name)
         nc = (sc.radar_counts or {}).get(name)
+        if scale is None:
+            pairs = mutual_nn(pred, m, gate)
+        else:
+            pairs = _associate(pred, m, rc, np.ones(len(m)) if nc is None else np.asarray(nc, float), gate, *scale)
         for i, j in pairs:
             src.append(pg[i, :2]), dst.append(m[j]), z.append(pg[i, 2]), info.append((sc.name, int(i), int(j)))
             rcs.append(np.nan if rc is None else float(rc[j]))
@@ -124,14 +129,44 @@ def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant):
     return np.array(src).reshape(-1, 2), np.array(dst).reshape(-1, 2), np.array(z), info, np.array(rcs), np.array(cnt, float)
 
 
-def rcs_weights(rcs: np.ndarray, floor: float = 1e-3) -> np.ndarray:
+MAX_GATE = 1.0  # m: the RCS-scaled gate never exceeds this (reflectors stand ~1 m apart)
+GHOST_DB = 4.0  # dB: a farther detection this much weaker than another of the same reflector is its multipath ghost
+
+
+def _associate(pred: np.ndarray, m: np.ndarray, rc, counts: np.ndarray, gate: float, sigma_unit: float, rcs_ref: float) -> np.ndarray:
+    """Detections ``m`` (frame averages of ``counts`` frames, RCS ``rc`` or None) to predicted reflectors ``pred``:
+    each detection to its nearest reflector when closer than 3.4 of its own sigma (99.7 %, 2 dof), ``sigma_unit`` /
+    sqrt(RCS weight x frames) -- a weak echo's noise is larger, so a turned reflector's scattered frames all count,
+    at their small weight -- at least ``gate``, at most :data:`MAX_GATE`. Of the detections taken by one reflector,
+    those farther and more than :data:`GHOST_DB` weaker than the strongest are its multipath ghosts and dropped.
+    Returns (K,2) index pairs (reflector, detection); a reflector may take several detections (a cluster split)."""
+    if len(pred) == 0 or len(m) == 0:
+        return np.zeros((0, 2), int)
+    d = np.linalg.norm(m[:, None, :] - pred[None, :, :], axis=2)
+    near = np.argmin(d, axis=1)
+    dmin = d[np.arange(len(m)), near]
+    w = np.ones(len(m)) if rc is None else np.clip(10 ** ((np.where(np.isfinite(rc), rc, rcs_ref) - rcs_ref) / 10), 1e-3, 1.0)
+    sig = sigma_unit / np.sqrt(w * np.maximum(counts, 1))
+    ok = dmin < np.clip(3.4 * sig, gate, MAX_GATE)
+    if rc is not None:
+        rr = np.linalg.norm(m, axis=1)
+        for i in np.unique(near[ok]):  # reflectors (few)
+            mine = np.nonzero(ok & (near == i))[0]
+            top = mine[np.argmax(rc[mine])]
+            ok[mine[(rc[mine] < rc[top] - GHOST_DB) & (rr[mine] > rr[top])]] = False
+    j = np.nonzero(ok)[0]
+    return np.stack([near[j], j], axis=1)
+
+
+def rcs_weights(rcs: np.ndarray, floor: float = 1e-3, ref: float | None = None) -> np.ndarray:
     """Relative inverse variances of radar detections from their RCS (dBsm): a radar's position noise grows as the
-    echo weakens (variance ~ 1 / SNR ~ 10^(-RCS/10)); relative to the 90th percentile of the matched detections'
-    RCS, capped at 1 (strong echoes all count the same), ``floor`` below. Ones when the RCS is unknown."""
+    echo weakens (variance ~ 1 / SNR ~ 10^(-RCS/10)); relative to ``ref`` (default: the 90th percentile of the
+    matched detections' RCS), capped at 1 (strong echoes all count the same), ``floor`` below. Ones when the RCS is
+    unknown."""
     rcs = np.asarray(rcs, float)
     if len(rcs) == 0 or not np.isfinite(rcs).any():
         return np.ones(len(rcs))
-    ref = float(np.nanpercentile(rcs, 90))
+    ref = float(np.nanpercentile(rcs, 90)) if ref is None else float(ref)
     w = 10 ** ((np.where(np.isfinite(rcs), rcs, ref) - ref) / 10)
     return np.clip(w, floor, 1.0)
 
@@ -352,27 +387,36 @@ def _fit_radars(rig: _Rig, pose_G: dict, outlier_threshold: float) -> tuple[dict
 
 
 def _fit_one_radar(rig: _Rig, r: str, pose_G: dict, outlier_threshold: float, fits: dict, matched: dict) -> None:
-    """Re-match radar ``r`` to the LiDAR reflectors under its current pose, reject outliers, fit; up to three rounds
-    until the pose stops moving. Writes ``pose_G[r]``, ``fits[r]`` and ``matched[r]``."""
+    """Match radar ``r`` to the LiDAR reflectors under its current pose (mutual nearest neighbours first, then every
+    detection within its own RCS-scaled gate, :func:`_associate`, at the robust noise scale of the previous fit),
+    reject outliers, fit; up to four rounds until the pose stops moving. Writes ``pose_G[r]``, ``fits[r]`` and
+    ``matched[r]``."""
     slant = rig.slant
     h = rig.heights[r] if rig.heights[r] is not None else rig.h_guess
-    for _ in range(3):
-        s_, d_, z_, info, rc_, n_ = _obs_for_radar(rig.scenes, rig.lidar_G, r, pose_G[r], h, rig.gate, slant)
+    scale = None
+    rcs_ref = None
+    for _ in range(4):
+        s_, d_, z_, info, rc_, n_ = _obs_for_radar(rig.scenes, rig.lidar_G, r, pose_G[r], h, rig.gate, slant, scale)
         if len(s_) < 2:
             break
-        w_ = rcs_weights(rc_) * n_  # a mean of n frames counts n times
+        if rcs_ref is None and np.isfinite(rc_).any():
+            rcs_ref = float(np.nanpercentile(rc_, 90))  # the strong echoes of the first (mutual) matches: fixed from here
+        w_ = rcs_weights(rc_, ref=rcs_ref) * n_  # a mean of n frames counts n times
         kw = _fit_kw(slant, rig.heights[r], h)
         keep, rej = reject_outliers(s_, d_, threshold=outlier_threshold, weights=w_, k_sigma=K_SIGMA, **({**kw, "src_z": z_} if slant else kw))
         f = fit_rigid_2d(s_[keep], d_[keep], src_z=z_[keep] if slant else None, weights=w_[keep], **kw)
         # f maps G -> radar; pose_G is radar -> G
         new = f.pose.inverse()
         h = f.height if f.height is not None else h
-        converged = abs(_wrap(new.theta - pose_G[r].theta)) < 1e-10 and np.allclose(new.t, pose_G[r].t, atol=1e-9)
+        converged = scale is not None and abs(_wrap(new.theta - pose_G[r].theta)) < 1e-10 and np.allclose(new.t, pose_G[r].t, atol=1e-9)
         pose_G[r] = new
         fits[r] = f
         matched[r] = _Matched(s_, d_, z_, info, keep, rej, kw, w_, rc_)
         if converged:
             break
+        # robust unit-weight noise scale (median 2D residual length = 1.177 sigma), at least 1 cm
+        unit = np.sqrt(w_[keep]) * np.linalg.norm(f.residuals, axis=1)
+        scale = (max(float(np.median(unit)) / 1.177, 0.01), rcs_ref if rcs_ref is not None else 0.0)
 
 
 def _try_mirror_height(rig: _Rig, r: str, pose_G: dict, fits: dict, m: _Matched) -> None:
