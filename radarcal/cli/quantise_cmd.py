@@ -8,7 +8,6 @@ from pathlib import Path
 import typer
 
 from radarcal.cli.common import JsonOpt, emit
-from radarcal.errors import InputError
 
 __all__ = ["quantise"]
 
@@ -24,10 +23,10 @@ def quantise(
     as_json: JsonOpt = False,
 ) -> None:
     """Write an int8 (QDQ, per-channel) copy of MODEL; print its CPU time against the float model and how far its outputs moved on held-out frames."""
+    from radarcal.io.outputs import check_outputs
     from radarcal.runtime.quantise import quantise_model
 
-    if out.resolve() == model.resolve():
-        raise InputError(out, "--out must not be the model itself")
+    check_outputs(None, [("int8 model", out)], inputs=[model])  # before any work: a failed command writes nothing
     r = quantise_model(model, out, images, held_out=held_out, activations=activations, max_frames=frames, conf=conf)
 
     def human(r: dict) -> None:

@@ -264,7 +264,7 @@ class OnnxModel:
 
                 native_ov = True
             except ImportError:
-                _note(f"note: {ov_item} needs the openvino package (pip install openvino, or radarcal[openvino]); running {self.path.name} on CPU (onnxruntime)")
+                _note(f"note: {ov_item} needs the openvino package (pip install openvino, or radarcal[speed]); running {self.path.name} on CPU (onnxruntime)")
         if native_ov:  # onnxruntime only reads the graph's names, shapes and metadata: no optimisation, one thread
             so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
             so.intra_op_num_threads = 1
