@@ -1,15 +1,17 @@
 """Detector stages inside ``radarcal run``: a YOLOv8n-sized 640 robot detector + a 64 px number classifier on 12
 crops per frame, through the whole loop on the sample replay, with the per-stage table and onnxruntime threads.
 
-    PYTHONPATH=$PWD python -m benchmarks detector            # ~2-3 min on 2 busy cores
+    PYTHONPATH=$PWD python -m benchmarks detector            # 1 min 40 s on 2 quiet cores
     PYTHONPATH=$PWD python -m benchmarks.detector --frames 150
 
 No trained weights can be downloaded here: the graphs are generated with random weights at the real sizes
 (``radarcal.runtime.synthetic_onnx``: YOLOv8n-like 4.05 GMAC / 3.0 M parameters at nc = 12, a 64 px grey CNN of
 27 MMAC per crop, a YOLOv8n-like armour detector at 192 px). The random robot detector finds nothing, so the boxes
 handed to the later stages are the replay's six detections per frame plus six more boxes beside them (12 crops);
-every network still runs in full on every frame. Loop: JPEG decode in the prefetch thread, letterbox, onnxruntime
-(worker threads sleep instead of spinning), decode + NMS, crops, classifier, fusion, tracks, JSON lines.
+every network still runs in full on every frame. Loop: JPEG decode and letterbox in the prefetch thread, inference
+(onnxruntime with sleeping worker threads, or ``--providers openvino``), decode + NMS, crops, classifier, fusion,
+tracks, JSON lines. Rows: float and int8 (``radarcal quantise``) models on onnxruntime and on OpenVINO (skipped with
+a line when the openvino package is absent), two thread layouts, and the armour stage.
 """
 
 from __future__ import annotations

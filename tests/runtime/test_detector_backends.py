@@ -5,7 +5,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import numpy as np
@@ -104,26 +103,23 @@ def test_int8_classifier_keeps_the_float_classes(tmp_path):
     assert r["agreement"]["top1"] >= 0.9 and r["agreement"]["max_prob_diff"] < 0.05
 
 
-def test_quantise_cli(models, tmp_path):
+def test_quantise_cli(models, tmp_path, capsys):
+    """The command end to end in-process (bad models / folders / outputs: tests/cli/test_bad_input_matrix.py)."""
     pytest.importorskip("onnx")
     import cv2
 
+    from radarcal.cli.main import main
+
     (tmp_path / "frames").mkdir()
     for s in range(8):
-        cv2.imwrite(str(tmp_path / "frames" / f"{s:03d}.png"), scene((640, 640), 6, s)[0])
-    py = [sys.executable, "-m", "radarcal"]
+        cv2.imwrite(str(tmp_path / "frames" / f"{s:03d}.png"), scene((480, 640), 6, s)[0])
     out = tmp_path / "sq.int8.onnx"
-    p = subprocess.run(py + ["quantise", str(models / "sq.onnx"), "--images", str(tmp_path / "frames"), "-o", str(out), "--frames", "4", "--json"],
-                       capture_output=True, text=True, timeout=300)  # fmt: skip
-    assert p.returncode == 0, p.stderr
-    r = json.loads(p.stdout)
-    assert out.is_file() and r["agreement"]["matched"] == 1.0 and r["frames"] == 4 and r["held_out"] == 4
-    for args, what in [([str(tmp_path / "none.onnx")], "ONNX model not found"), ([str(tmp_path / "frames" / "000.png")], "cannot load ONNX model")]:
-        bad = tmp_path / "bad.onnx"
-        p = subprocess.run(py + ["quantise", *args, "--images", str(tmp_path / "frames"), "-o", str(bad)], capture_output=True, text=True, timeout=120)
-        assert p.returncode == 2 and what in p.stderr and p.stderr.count("\n") == 1 and not bad.exists()
-    p = subprocess.run(py + ["quantise", str(models / "sq.onnx"), "--images", str(tmp_path / "nothing"), "-o", str(tmp_path / "b.onnx")], capture_output=True, text=True, timeout=120)
-    assert p.returncode == 2 and "calibration images" in p.stderr and not (tmp_path / "b.onnx").exists()
+    assert main(["quantise", str(models / "sq.onnx"), "--images", str(tmp_path / "frames"), "-o", str(out), "--frames", "4", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert out.is_file() and r["agreement"]["matched"] == 1.0 and r["agreement"]["boxes"] == 24 and r["frames"] == 4 and r["held_out"] == 4
+    assert main(["quantise", str(models / "sq.onnx"), "--images", str(tmp_path / "frames"), "-o", str(models / "sq.onnx")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "would overwrite the input" in err[0]
 
 
 def test_letterbox_in_the_prefetch_thread(models):
