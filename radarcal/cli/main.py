@@ -48,6 +48,7 @@ app.command("run")(run_cmd.run)
 app.command("hero-offset")(run_cmd.hero_offset)
 app.command("record")(record_cmd.record)
 app.command("report")(report_cmd.report)
+app.command("quantise")(__import__("radarcal.cli.quantise_cmd", fromlist=["quantise"]).quantise)
 app.command("referee-sim")(__import__("radarcal.cli.referee_sim_cmd", fromlist=["referee_sim"]).referee_sim)
 
 # `radarcal synth <scene>`: ground-truth scene generators

@@ -36,7 +36,7 @@ def run(
     armour_names: Path = typer.Option(None, "--armour-names", help="Armour class names file (default: the model's metadata)."),
     number: Path = typer.Option(None, "--number", help="Number classifier ONNX run on each armour crop (on each robot crop without --armour)."),
     number_names: Path = typer.Option(None, "--number-names", help="Number class names file (default: the model's metadata)."),
-    providers: str = typer.Option("cpu", "--providers", help="onnxruntime providers in order, e.g. tensorrt,cuda,cpu (needs onnxruntime-gpu)."),
+    providers: str = typer.Option("cpu", "--providers", help="Inference providers in order, e.g. tensorrt,cuda,cpu (needs onnxruntime-gpu), or openvino (the openvino package: bf16 / int8 on Intel CPUs)."),
     detect_ahead: bool = typer.Option(True, "--detect-ahead/--no-detect-ahead", help="Run the detector one frame ahead in a thread (throughput; +1 frame latency)."),
     conf: float = typer.Option(0.25, "--conf", help="Detector confidence threshold."),
     threads: int = typer.Option(0, "--threads", help="onnxruntime intra-op threads per model (0 = its default)."),

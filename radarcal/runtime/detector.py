@@ -23,7 +23,7 @@ import numpy as np
 from radarcal.errors import InputError
 from radarcal.runtime.yolo_layouts import Layout, UnknownLayout, decode_batch, decode_v5_rows, detect_layout, nms, parse_meta_value, read_anchor_config
 
-__all__ = ["Detection", "Prepared", "letterbox", "tile_grid", "plan_rois", "decode_yolov5", "nms", "OnnxDetector", "OnnxModel", "DetectionsFile", "read_class_names", "resolve_providers"]
+__all__ = ["Detection", "Prepared", "letterbox", "tile_grid", "plan_rois", "decode_yolov5", "nms", "OnnxDetector", "OnnxModel", "OpenVinoSession", "DetectionsFile", "read_class_names", "resolve_providers"]
 
 
 @dataclass
@@ -146,7 +146,14 @@ def _names_from(data) -> list[str] | None:
 # --- onnxruntime sessions ----------------------------------------------------------------------------------------------
 PROVIDERS = {"cpu": "CPUExecutionProvider", "cuda": "CUDAExecutionProvider", "tensorrt": "TensorrtExecutionProvider", "trt": "TensorrtExecutionProvider",
              "openvino": "OpenVINOExecutionProvider", "dml": "DmlExecutionProvider", "coreml": "CoreMLExecutionProvider"}  # fmt: skip
+# ``--providers`` names served by the ``openvino`` package itself when onnxruntime has no OpenVINO provider: the
+# precision OpenVINO runs the float layers in (None: its default, bf16 on CPUs with AMX / AVX512-BF16, else f32)
+OPENVINO_NAMES = {"openvino": None, "openvino-bf16": "bf16", "openvino-f32": "f32"}
 _NOTES_SHOWN: set[str] = set()
+
+
+def _provider_items(spec: str | list[str] | None) -> list[str]:
+    return [s.strip() for s in (spec.split(",") if isinstance(spec, str) else (spec or ["cpu"])) if s.strip()]
 
 
 def resolve_providers(spec: str | list[str] | None) -> tuple[list[str], list[str]]:
@@ -154,12 +161,11 @@ def resolve_providers(spec: str | list[str] | None) -> tuple[list[str], list[str
     ``"tensorrt,cuda,cpu"``-style text. Unknown names raise InputError."""
     import onnxruntime as ort
 
-    items = [s.strip() for s in (spec.split(",") if isinstance(spec, str) else (spec or ["cpu"])) if s.strip()]
     want = []
-    for s in items:
-        p = PROVIDERS.get(s.lower(), s if s.endswith("ExecutionProvider") else None)
+    for s in _provider_items(spec):
+        p = PROVIDERS.get(s.lower(), "OpenVINOExecutionProvider" if s.lower() in OPENVINO_NAMES else (s if s.endswith("ExecutionProvider") else None))
         if p is None:
-            raise InputError("--providers", f"unknown provider {s!r} (cpu, cuda, tensorrt, openvino, dml, coreml)")
+            raise InputError("--providers", f"unknown provider {s!r} (cpu, cuda, tensorrt, openvino, openvino-bf16, openvino-f32, dml, coreml)")
         if p not in want:
             want.append(p)
     have = set(ort.get_available_providers())
@@ -171,6 +177,60 @@ def _note(msg: str) -> None:
     if msg not in _NOTES_SHOWN:
         _NOTES_SHOWN.add(msg)
         sys.stderr.write(msg + "\n")
+
+
+class OpenVinoSession:
+    """The part of an onnxruntime ``InferenceSession`` radarcal uses (``run``, ``get_inputs`` / ``get_outputs`` /
+    ``get_modelmeta``), over the same ONNX file compiled by OpenVINO for the CPU (``pip install openvino``): on Intel
+    CPUs with AMX / AVX512-BF16 its default runs the float layers in bf16, and an int8 QDQ model
+    (``radarcal quantise``) on the VNNI / AMX int8 kernels. ``ort_session``: an onnxruntime session of the file,
+    kept for the graph's names, shapes and metadata only.
+
+    ``threads`` > 0: that many threads per inference and ``cpu_count // threads`` streams, so that that many calls
+    from different threads (``--detect-workers``) run at the same time; 0: one stream on all cores (lowest latency
+    of one call). Threads are not pinned to cores (the station PC runs other work too). One infer request per
+    calling thread."""
+
+    def __init__(self, path: str | os.PathLike, ort_session, threads: int = 0, precision: str | None = None):
+        import openvino as ov
+
+        self._ort = ort_session
+        cfg: dict = {"ENABLE_CPU_PINNING": False}
+        if threads:
+            streams = max((os.cpu_count() or 1) // int(threads), 1)
+            cfg.update({"NUM_STREAMS": streams, "INFERENCE_NUM_THREADS": streams * int(threads)})
+        else:
+            cfg["PERFORMANCE_HINT"] = "LATENCY"
+        if precision:
+            cfg["INFERENCE_PRECISION_HINT"] = precision
+        self.compiled = ov.Core().compile_model(str(path), "CPU", cfg)
+        hint = self.compiled.get_property("INFERENCE_PRECISION_HINT")
+        self.precision = hint.get_type_name() if hasattr(hint, "get_type_name") else str(hint)  # bf16 / f32 / f16
+        self.version = str(getattr(ov, "__version__", "")).split("-")[0]
+        self._ports = {o.get_any_name(): o for o in self.compiled.outputs}
+        for o in self.compiled.outputs:
+            for n in o.get_names():
+                self._ports.setdefault(n, o)
+        self._local = threading.local()
+
+    def run(self, output_names, feed: dict) -> list[np.ndarray]:
+        req = getattr(self._local, "req", None)
+        if req is None:
+            req = self._local.req = self.compiled.create_infer_request()
+        res = req.infer({k: np.ascontiguousarray(v) for k, v in feed.items()})
+        return [np.array(res[self._ports[n]], copy=True) for n in output_names]  # the request's buffers are reused by its next call
+
+    def get_inputs(self):
+        return self._ort.get_inputs()
+
+    def get_outputs(self):
+        return self._ort.get_outputs()
+
+    def get_modelmeta(self):
+        return self._ort.get_modelmeta()
+
+    def get_providers(self) -> list[str]:
+        return [f"OpenVINO-CPU-{self.precision}"]
 
 
 class OnnxModel:
@@ -194,7 +254,21 @@ class OnnxModel:
         so.log_severity_level = 3
         if not spin:  # idle worker threads sleep instead of spinning: no CPU stolen from the rest of the loop / machine
             so.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        use, missing = resolve_providers(providers)
+        items = _provider_items(providers)
+        ov_item = next((i for i in items if i.lower() in OPENVINO_NAMES), None)
+        native_ov = False
+        if ov_item is not None and "OpenVINOExecutionProvider" not in ort.get_available_providers():
+            items = [i for i in items if i.lower() not in OPENVINO_NAMES] or ["cpu"]
+            try:
+                import openvino  # noqa: F401
+
+                native_ov = True
+            except ImportError:
+                _note(f"note: {ov_item} needs the openvino package (pip install openvino, or radarcal[speed]); running {self.path.name} on CPU (onnxruntime)")
+        if native_ov:  # onnxruntime only reads the graph's names, shapes and metadata: no optimisation, one thread
+            so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
+            so.intra_op_num_threads = 1
+        use, missing = resolve_providers(items)
         if missing:
             _note(f"note: onnxruntime {ort.__version__} has no {', '.join(missing)} (install onnxruntime-gpu with matching CUDA/TensorRT); "
                   f"running {self.path.name} on {', '.join(p.replace('ExecutionProvider', '') for p in use)}")  # fmt: skip
@@ -217,6 +291,17 @@ class OnnxModel:
         lost = [p for p in use if p not in got]
         if lost:
             _note(f"note: {', '.join(lost)} failed to start for {self.path.name} (CUDA/TensorRT libraries?); running on {', '.join(got)}")
+        if native_ov:
+            try:
+                self.session = OpenVinoSession(self.path, self.session, threads, OPENVINO_NAMES[ov_item.lower()])
+                got = self.session.get_providers()
+            except Exception as e:  # noqa: BLE001 - OpenVINO raises RuntimeError subclasses of its own
+                msg = str(e).strip().splitlines()[0][:120] if str(e).strip() else e.__class__.__name__
+                _note(f"note: OpenVINO cannot compile {self.path.name} ({msg}); running it on CPU (onnxruntime)")
+                so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+                so.intra_op_num_threads = int(threads) if threads else 0
+                self.session = ort.InferenceSession(str(self.path), so, providers=use, provider_options=opts)
+                got = self.session.get_providers()
         self.providers = got
         self.meta = {k: parse_meta_value(v) for k, v in self.session.get_modelmeta().custom_metadata_map.items()}
         inp = self.session.get_inputs()[0]

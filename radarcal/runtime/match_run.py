@@ -259,7 +259,7 @@ def _single_sources(plan: RunPlan, log: Callable):
         cloud_src = _live_clouds(plan, recorder)
     if o.detector is not None and frames is not None and not plan.lidar_only:  # decode ahead in a thread (live sources: newest frame only)
         live = video is not None and (video.isdigit() or "://" in video)
-        frames = prefetch_frames(frames, latest_only=live)
+        frames = prefetch_frames(frames, latest_only=live, prepare=getattr(detect, "prepare_ahead", None))  # letterbox there too
         if o.detect_ahead:
             frames = detect.frames(frames)
     if rep is None and recorder is not None:

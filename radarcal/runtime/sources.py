@@ -135,9 +135,10 @@ def open_replay(folder: str | os.PathLike) -> Replay:
     return Replay(**replay_fields(folder))
 
 
-def prefetch_frames(frames: Iterator[CameraFrame], depth: int = 3, latest_only: bool = False) -> Iterator[CameraFrame]:
+def prefetch_frames(frames: Iterator[CameraFrame], depth: int = 3, latest_only: bool = False, prepare=None) -> Iterator[CameraFrame]:
     """Decode images in a background thread (JPEG decode and the detector then overlap). ``latest_only`` (live
-    cameras): keep only the newest decoded frame, dropping older ones, so latency never builds up."""
+    cameras): keep only the newest decoded frame, dropping older ones, so latency never builds up. ``prepare``:
+    called on each decoded image in that thread too (the detector's letterbox, ``OnnxDetector.prepare_ahead``)."""
     import queue
 
     q: queue.Queue = queue.Queue(maxsize=1 if latest_only else depth)
@@ -151,6 +152,8 @@ def prefetch_frames(frames: Iterator[CameraFrame], depth: int = 3, latest_only: 
                     break
                 try:
                     img = f.load()
+                    if prepare is not None:
+                        prepare(img)
                     g = CameraFrame(f.t, f.name, (lambda img=img: img), f.index)
                 except InputError as e:
                     g = CameraFrame(f.t, f.name, (lambda e=e: (_ for _ in ()).throw(e)), f.index)

@@ -237,6 +237,12 @@ class DetectAhead:
         self._last: dict[str, float] = {}
         self._tls = threading.local()
 
+    def prepare_ahead(self, image):
+        """The robot detector's letterbox of ``image`` now (call it in the frame-prefetch thread): its detect call
+        then skips that work (:meth:`OnnxDetector.prepare_ahead`)."""
+        robot = getattr(self.recogniser, "robot", None)
+        return robot.prepare_ahead(image) if hasattr(robot, "prepare_ahead") else image
+
     def _own(self):
         """This worker thread's recogniser: a shallow copy (own ``last_timings_ms``), sessions shared."""
         if self.workers == 1:

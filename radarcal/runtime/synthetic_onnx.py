@@ -87,7 +87,10 @@ def count_macs(input_size: int = 640, nc: int = 80) -> tuple[int, int]:
     return macs, params
 
 
-def make_yolov5n_like(path: str | os.PathLike, nc: int = 12, input_size: int = 640, names: list[str] | None = None, seed: int = 0) -> None:
+def make_yolov5n_like(path: str | os.PathLike, nc: int = 12, input_size: int = 640, names: list[str] | None = None, seed: int = 0,
+                      dynamic_batch: bool = False) -> None:  # fmt: skip
+    """A random-weight YOLOv5n-sized detector (see the module docstring), batch 1 or (``dynamic_batch``, as YOLOv5's
+    ``export.py --dynamic`` writes it) any batch. For timing only."""
     import onnx
     from onnx import TensorProto, helper, numpy_helper
 
@@ -131,8 +134,9 @@ def make_yolov5n_like(path: str | os.PathLike, nc: int = 12, input_size: int = 6
         w = (rng.standard_normal((3 * no, ch, 1, 1)) * 0.01).astype(np.float32)
         inits += [numpy_helper.from_array(w, name + "_w"), numpy_helper.from_array(bias, name + "_b")]
         nodes.append(helper.make_node("Conv", [fx, name + "_w", name + "_b"], [name + "_c"], kernel_shape=[1, 1]))
-        shp = numpy_helper.from_array(np.array([1, 3, no, g, g], np.int64), name + "_shape")
-        flat = numpy_helper.from_array(np.array([1, 3 * g * g, no], np.int64), name + "_flat")
+        b0 = -1 if dynamic_batch else 1
+        shp = numpy_helper.from_array(np.array([b0, 3, no, g, g], np.int64), name + "_shape")
+        flat = numpy_helper.from_array(np.array([b0, 3 * g * g, no], np.int64), name + "_flat")
         yy, xx = np.meshgrid(np.arange(g), np.arange(g), indexing="ij")
         grid = np.stack([xx, yy], -1)[None, None].astype(np.float32) - 0.5  # (1,1,g,g,2)
         anc = np.array(anchors[stride], np.float32).reshape(1, 3, 1, 1, 2)
@@ -156,8 +160,9 @@ def make_yolov5n_like(path: str | os.PathLike, nc: int = 12, input_size: int = 6
         outs.append(name + "_out")
     nodes.append(helper.make_node("Concat", outs, ["output"], axis=1))
     n = sum(3 * (input_size // s) ** 2 for s in (8, 16, 32))
-    graph = helper.make_graph(nodes, "yolov5n_like", [helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, input_size, input_size])],
-                              [helper.make_tensor_value_info("output", TensorProto.FLOAT, [1, n, no])], inits)  # fmt: skip
+    bdim = "batch" if dynamic_batch else 1
+    graph = helper.make_graph(nodes, "yolov5n_like", [helper.make_tensor_value_info("images", TensorProto.FLOAT, [bdim, 3, input_size, input_size])],
+                              [helper.make_tensor_value_info("output", TensorProto.FLOAT, [bdim, n, no])], inits)  # fmt: skip
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
     model.ir_version = 8
     _names_meta(model, names or [f"class_{i}" for i in range(nc)])

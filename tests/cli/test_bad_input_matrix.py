@@ -118,6 +118,9 @@ TABLE: dict[str, Cmd] = {
     "referee-sim": Cmd(lambda f: ["--replay", f["replay"], "--season", "2026", "--start-timeout", "0.1"],
                        [Opt("--replay", "replay", "folder_in"),
                         Opt("--record", "text", "output", skip=("is-bundle",), why="referee-sim reads no bundle (the replay's own files are protected)")]),
+    "quantise": Cmd(lambda f: [f["onnx"], "--images", f["replay"], "-o", f["tmp"] / "q.onnx"],
+                    [Opt(None, "onnx", index=0, skip=("nan", "header"), why="an ONNX model: binary, no numbers in text"), Opt("--images", "replay", "folder_in"),
+                     Opt("--held-out", "replay", "folder_in"), Opt("-o", "text", "output", skip=("is-bundle",), why="quantise reads no bundle")]),
     "synth radar": Cmd(lambda f: [f["tmp"] / "radar_out", "--scenes", "1"], [Opt(None, "radar_out", "folder_out", index=0)]),
 }
 
