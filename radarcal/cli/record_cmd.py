@@ -24,7 +24,7 @@ def record(
     duration: float = typer.Option(None, "--duration", help="Stop after this many seconds (default: Ctrl-C, or the end of a video file)."),
     jpeg_quality: int = typer.Option(90, "--jpeg-quality", help="JPEG quality of the recorded frames."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No status line."),
-    as_json: bool = JsonOpt,
+    as_json: JsonOpt = False,
 ) -> None:
     """Record raw LiDAR packets, camera frames (JPEG) and serial bytes with host receive times (replay: `radarcal run --replay OUT`)."""
     import sys
