@@ -8,7 +8,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-__all__ = ["record"]
+__all__ = ["record", "replay_recording"]
 
 _END = object()  # the camera's frames ended (video file)
 
@@ -96,3 +96,104 @@ def _record_frames(rec, video_file, video: str | None, camera: str, sources: dic
     except KeyboardInterrupt:
         pass
     return n_frames
+
+
+def replay_recording(replay: Path, *, bundle: Path | None, speed: float, detector, names, conf, threads, detections, serial, out, minimap, camera, lidar, team, season,
+                     max_frames, no_lidar, status: bool, sentry_xy: str | None, marking: dict | None = None, log: Callable[[str], None] = lambda s: None) -> dict:  # fmt: skip
+    """The match loop over a recording made by :func:`record` (``radarcal run --replay RECORDING``): the recorded
+    LiDAR packets through the live decoder, camera frames at their receive times, the recorded referee bytes driving
+    the referee state at their times; what the loop sends goes to ``serial`` (a port, ``pty`` or ``dry-run``).
+    ``speed`` 1 paces at real speed, 0 as fast as possible (same output). Returns the run's summary."""
+    from radarcal.io.recording import open_recording, paced
+    from radarcal.runtime.loop import Pipeline, RunConfig
+    from radarcal.runtime.loop import run as run_loop
+    from radarcal.runtime.marking import Marking
+    from radarcal.runtime.replay import ReplayLink, advancing, merged_recorded_clouds, recorded_frames
+    from radarcal.runtime.sources import merge_by_time
+
+    rec = open_recording(replay)
+    man = rec.manifest
+    bundle, b = _recording_bundle(man, bundle, log)
+    cam_name, lidar_name, lidars, T = _recording_sensors(b, rec, replay, bundle, camera, lidar, no_lidar)
+    sxy = tuple(float(v) for v in sentry_xy.split(",")) if sentry_xy else None
+    cfg = RunConfig.from_bundle(b, team=team, season=season, sentry_xy=sxy, **(marking or {}))
+    pipe = Pipeline(b, cam_name, lidar_name, cfg)
+    detect = _detect_fn(detector, names, conf, threads, detections)
+    frames = paced(recorded_frames(rec, cam_name), lambda f: f.t, speed)
+    clouds = merged_recorded_clouds(rec.clouds(), T) if lidar_name is not None else None
+    link = ReplayLink([(t, buf) for t, d, buf in rec.serial_records() if d == 0], _output_link(serial, cfg.season))
+    try:
+        summary = run_loop(pipe, advancing(merge_by_time(frames, clouds), link), detect, out, minimap, link, status=status,
+                           max_frames=max_frames, write_latency=False, marking=Marking(cfg))  # fmt: skip
+    finally:
+        link.close()
+    summary.pop("results")
+    summary.update({"bundle": str(bundle), "recording": str(replay), "camera": cam_name, "lidar": lidar_name, "lidars": lidars,
+                    "out": str(out) if out else None, "team": link.state.team or cfg.team, "season": cfg.season,
+                    "serial": {"output": serial or "dry-run", **link.snapshot()}, "recorded_health": man.get("health")})  # fmt: skip
+    return summary
+
+
+def _recording_bundle(man: dict, bundle: Path | None, log: Callable[[str], None]):
+    """The bundle to replay with (default: the one the manifest names) and its path; warns when its sha256 is not
+    the recorded one."""
+    from radarcal.bundle import load_bundle
+    from radarcal.errors import InputError
+    from radarcal.io.recording import file_sha256
+
+    if bundle is None:
+        if not man.get("bundle"):
+            raise InputError("--bundle", "required (the recording names no bundle)")
+        bundle = Path(man["bundle"]["path"])
+    b = load_bundle(bundle)
+    if man.get("bundle") and Path(bundle).is_file() and file_sha256(bundle) != man["bundle"]["sha256"]:
+        log(f"warning: {bundle}: not the bundle the recording was made with (sha256 differs)")
+    return bundle, b
+
+
+def _recording_sensors(b, rec, replay: Path, bundle: Path, camera: str | None, lidar: str | None, no_lidar: bool):
+    """The camera and main LiDAR to run on (``lidar_name`` None: no clouds), every recorded LiDAR's name and
+    ``T_<main>_<other>`` for the others (from the bundle)."""
+    from radarcal.errors import InputError
+    from radarcal.runtime.loop import pick_frames
+
+    cams = [s["name"] for s in rec.sensors("camera")]
+    if not cams:
+        raise InputError(replay, "the recording has no camera stream")
+    lidars = [s["name"] for s in rec.sensors("lidar") if s.get("sdk")]
+    has_clouds = bool(lidars) and not no_lidar
+    cam_name, lidar_name = pick_frames(b, camera or (cams[0] if cams[0] in b.cameras else None), lidar or (lidars[0] if has_clouds and lidars[0] in b.sensors else None), has_clouds)
+    if cam_name not in cams:
+        raise InputError(replay, f"no camera stream {cam_name!r} in the recording ({', '.join(cams)})")
+    T = {}
+    for n in lidars:
+        if has_clouds and n != lidar_name:
+            if not b.has_T(lidar_name, n):
+                raise InputError(bundle, f"no extrinsic T_{lidar_name}_{n} for the recorded LiDAR {n!r}")
+            T[n] = b.T(lidar_name, n)
+    return cam_name, lidar_name if has_clouds else None, lidars, T
+
+
+def _detect_fn(detector, names, conf, threads, detections):
+    """``detect(frame) -> boxes``: the ONNX model ``detector`` or the ``detections`` file looked up by time / name."""
+    from radarcal.errors import InputError
+    from radarcal.runtime.detector import DetectionsFile, OnnxDetector, read_class_names
+
+    if detector is not None:
+        det = OnnxDetector(detector, read_class_names(names) if names else None, conf_thres=conf, threads=threads)
+        return lambda f: det(f.load())
+    if detections is not None:
+        dfile = DetectionsFile.read(detections)
+        return lambda f: dfile.lookup(f.t, f.name)
+    raise InputError("radarcal run", "no detector: give --detector model.onnx or --detections FILE")
+
+
+def _output_link(serial: str | None, season):
+    """The started referee link the loop sends on: a real port, a pseudo-terminal (``pty``) or none (``dry-run``)."""
+    from radarcal.runtime.replay import open_output_port
+    from radarcal.runtime.serial_link import SerialLink
+
+    port = open_output_port(serial)
+    if port is not None:
+        return SerialLink(getattr(port, "name", "dry-run"), season=season, serial_factory=lambda *_: port).start()
+    return SerialLink(serial, season=season).start()
