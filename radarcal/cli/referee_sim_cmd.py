@@ -55,13 +55,11 @@ def referee_sim(
     """Play the referee over a pseudo-terminal: status, HP, mark feedback, DV chances; score radarcal's marks against the truth.
 
     The first line on stdout is the pty's path; the score table (or --json summary) follows when the match ends."""
-    import signal
     import sys
 
-    from radarcal.io.replay import open_replay_folder
     from radarcal.runtime.referee_season import KNOWN_SEASONS, rules
-    from radarcal.synth.referee_serve import PtyPort, SerialPort, open_pty, serve
-    from radarcal.synth.referee_sim import RefereeSim, Truth
+    from radarcal.synth.referee_serve import PtyPort, SerialPort, open_pty, replay_truth, serve_until_signal
+    from radarcal.synth.referee_sim import RefereeSim
 
     if season not in KNOWN_SEASONS:
         raise InputError("--season", f"referee season {season} is not one radarcal knows ({KNOWN_SEASONS[0]}..{KNOWN_SEASONS[-1]})")
@@ -72,15 +70,7 @@ def referee_sim(
             raise InputError(name, f"must be > 0, got {v}")
     if mark_radius is not None and not mark_radius > 0:
         raise InputError("--mark-radius", f"must be > 0, got {mark_radius}")
-    rep = open_replay_folder(replay)
-    if rep.truth is None:
-        raise InputError(replay, "no truth.jsonl: the simulator scores marks against the replay's truth")
-    try:
-        truth = Truth.from_lines(rep.truth_by_frame().values())
-    except (ValueError, KeyError, TypeError, IndexError) as e:
-        raise InputError(rep.truth, f"not a truth file (JSON lines with t and robots[label, p_field]): {e}") from None
-    if not len(truth.t):
-        raise InputError(rep.truth, "empty: no frames")
+    rep, truth = replay_truth(replay)
     if record is not None:
         from radarcal.cli.outputs import check_output
 
@@ -105,18 +95,7 @@ def referee_sim(
         raise InputError("radarcal referee-sim", "give --pty (default) or --port DEV")
     typer.echo(link.path)  # the first line: what `radarcal run --serial` opens
     sys.stdout.flush()
-    stop = {"now": False}
-
-    def on_signal(signum, frame):  # noqa: ARG001
-        stop["now"] = True
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        res = serve(sim, link, record, idle_exit_s=idle_exit, start_timeout_s=start_timeout, stop=lambda: stop["now"], speed=speed)
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
-        link.close()
+    res = serve_until_signal(sim, link, record, idle_exit_s=idle_exit, start_timeout_s=start_timeout, speed=speed)
     summary = res.summary
     summary.update({"port": link.path, "replay": str(replay), "record": str(record) if record else None, "dv_grants": list(grants)})
     emit(summary, as_json, lambda s: [typer.echo(line) for line in format_table(s)])

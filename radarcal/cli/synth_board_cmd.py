@@ -58,6 +58,7 @@ def synth_board(
 ) -> None:
     """Render a calibration-target image set with known camera, poses and corner pixels."""
     from radarcal.synth.board import RenderSettings, default_camera, default_stereo_camera, write_board_set
+    from radarcal.synth.board_set import board_set_summary
 
     partial = int(round(0.08 * views)) if partial is None else partial
     if partial > views:
@@ -90,46 +91,33 @@ def synth_board(
         raise InputError("--board/--image-size", str(e)) from None
     except OSError as e:
         raise InputError(out_dir, f"cannot write: {e.strerror or e}") from None
-    elapsed = time.perf_counter() - t0
-    files = truth["files"]
-    summary = {
-        "out_dir": str(out_dir),
-        "truth": str(Path(out_dir) / "truth.json"),
-        "model": truth["model"],
-        "camera": truth["camera"],
-        "board": truth["board"],
-        "n_files": len(files["all"]),
-        "files": {k: v for k, v in files.items() if k != "all"},
-        "seconds": round(elapsed, 2),
-    }
-    if "video" in truth:
-        summary["video"] = {k: truth["video"][k] for k in ("file", "fps", "n_frames", "keyframes")}
-    if "stereo" in truth:
-        summary["stereo"] = {k: v for k, v in truth["stereo"].items() if k != "files1"}
+    summary = board_set_summary(truth, out_dir, time.perf_counter() - t0)
+    emit(summary, as_json, _human)
 
-    def human(s: dict) -> None:
-        c = s["camera"]
-        K = c["K"]
-        b = s["board"]
-        shape = f"{b['cols']}x{b['rows']} {'inner corners' if b['type'] == 'chessboard' else 'squares'}"
-        per = " per camera" if "stereo" in s else ""
-        typer.echo(f"wrote {s['n_files']} files{per} + truth.json to {s['out_dir']} in {s['seconds']:.1f} s")
-        typer.echo(f"  camera: {s['model']} {c['image_size'][0]}x{c['image_size'][1]} fx={K[0][0]:.3f} fy={K[1][1]:.3f} "
-                   f"cx={K[0][2]:.3f} cy={K[1][2]:.3f} dist={[round(x, 6) for x in c['dist']]}")
-        typer.echo(f"  board: {b['type']}{' (legacy)' if b['legacy'] else ''} {shape}, square {b['square'] * 1000:g} mm"
-                   + (f", marker {b['marker'] * 1000:g} mm {b['dictionary']}" if b["type"] == "charuco" else ""))
-        f = s["files"]
-        typer.echo(f"  views: {len(f['full'])} full, {len(f['partial'])} partial, {len(f['bad'])} bad, {len(f['blurred'])} blurred, "
-                   f"{len(f['blank'])} blank, {len(f['corrupt'])} corrupt")
-        if "video" in s:
-            vd = s["video"]
-            typer.echo(f"  video: {vd['file']} {vd['n_frames']} frames at {vd['fps']:g} fps, key poses at frames {vd['keyframes']}")
-        if "stereo" in s:
-            st = s["stereo"]
-            typer.echo(f"  stereo: cam1 {st['model1']} fx={st['camera1']['K'][0][0]:.3f}, baseline {st['baseline_m'] * 1000:.2f} mm "
-                       f"(cam0/ and cam1/, T_cam1_cam0 in truth.json)")
-        for kind in ("partial", "bad", "blurred", "blank", "corrupt"):
-            if f[kind]:
-                typer.echo(f"  {kind}: {', '.join(f[kind])}")
 
-    emit(summary, as_json, human)
+def _human(s: dict) -> None:
+    """The summary for people."""
+    c = s["camera"]
+    K = c["K"]
+    b = s["board"]
+    shape = f"{b['cols']}x{b['rows']} {'inner corners' if b['type'] == 'chessboard' else 'squares'}"
+    per = " per camera" if "stereo" in s else ""
+    typer.echo(f"wrote {s['n_files']} files{per} + truth.json to {s['out_dir']} in {s['seconds']:.1f} s")
+    typer.echo(f"  camera: {s['model']} {c['image_size'][0]}x{c['image_size'][1]} fx={K[0][0]:.3f} fy={K[1][1]:.3f} "
+               f"cx={K[0][2]:.3f} cy={K[1][2]:.3f} dist={[round(x, 6) for x in c['dist']]}")
+    typer.echo(f"  board: {b['type']}{' (legacy)' if b['legacy'] else ''} {shape}, square {b['square'] * 1000:g} mm"
+               + (f", marker {b['marker'] * 1000:g} mm {b['dictionary']}" if b["type"] == "charuco" else ""))
+    f = s["files"]
+    typer.echo(f"  views: {len(f['full'])} full, {len(f['partial'])} partial, {len(f['bad'])} bad, {len(f['blurred'])} blurred, "
+               f"{len(f['blank'])} blank, {len(f['corrupt'])} corrupt")
+    if "video" in s:
+        vd = s["video"]
+        typer.echo(f"  video: {vd['file']} {vd['n_frames']} frames at {vd['fps']:g} fps, key poses at frames {vd['keyframes']}")
+    if "stereo" in s:
+        st = s["stereo"]
+        typer.echo(f"  stereo: cam1 {st['model1']} fx={st['camera1']['K'][0][0]:.3f}, baseline {st['baseline_m'] * 1000:.2f} mm "
+                   f"(cam0/ and cam1/, T_cam1_cam0 in truth.json)")
+    for kind in ("partial", "bad", "blurred", "blank", "corrupt"):
+        if f[kind]:
+            typer.echo(f"  {kind}: {', '.join(f[kind])}")
+

@@ -293,11 +293,7 @@ def calibrate(
     View rule: more than ``max_outlier_fraction`` of its corners are outliers, or its inlier RMS exceeds
     ``view_rms_factor`` × the expected RMS (√2 σ). At least half of the views (and 3) are always kept.
 
-    Why one ~100-line function: it is one rejection loop whose state (per-corner inliers, used views, reasons, the
-    warm start, the frozen flag) every round reads and updates; split, each piece would pass those six around.
-    Long (~100 lines) on purpose: one solve-reject-resolve loop whose state (views kept, corners kept, flags, the
-    last OpenCV solution) is shared by every step; the pieces it calls (σ, outlier tests, the model's flags) are
-    separate functions.
+    The loop solves, applies one :func:`_rejection_round` and stops when the inliers settle.
     """
     V = len(object_points)
     obj = [np.asarray(o, float).reshape(-1, 3) for o in object_points]
@@ -322,49 +318,8 @@ def calibrate(
         res = _residuals_all(cam, model, rvecs, tvecs, obj, img)
         if not reject or it >= max_iterations:
             break
-        # σ from the median over ALL corners of the used views (robust; does not shrink as outliers go, so the
-        # monotone rejection settles instead of eating into the tails of a model that cannot fit exactly)
-        r_all = np.concatenate([res[v] for v in sel])
-        r_all = r_all[np.all(np.isfinite(r_all), axis=1)]
-        sigma = max(float(np.sqrt(np.median(np.sum(r_all**2, axis=1)) / (2 * np.log(2)))), 1e-3)
-        thr = k_sigma * sigma
-        new_inl = []
-        new_used = np.ones(V, bool)
-        new_reasons = [""] * V
-        badness = np.zeros(V)
         monotone = it > free_iterations
-        for v in range(V):
-            if monotone and not used[v]:  # late rejections are final (stable on misfit models, terminates)
-                new_inl.append(inl[v])
-                new_used[v], new_reasons[v], badness[v] = False, reasons[v], 1e9
-                continue
-            n = np.linalg.norm(res[v], axis=1)
-            m_all = np.isfinite(n) & (n < thr)
-            m = (inl[v] & m_all) if monotone else m_all
-            new_inl.append(m)
-            frac_out = 1.0 - m_all.mean()
-            rms_v = float(np.sqrt(np.mean(n[m] ** 2))) if m.sum() else np.inf
-            if not np.all(np.isfinite(res[v])):
-                new_used[v], new_reasons[v] = False, "outlier: pose failed"
-                badness[v] = np.inf
-            elif frac_out > max_outlier_fraction:
-                new_used[v], new_reasons[v] = False, f"outlier: {frac_out:.0%} of corners beyond {thr:.2f} px (view RMS {np.sqrt(np.mean(n**2)):.2f} px)"
-                badness[v] = frac_out + 1
-            elif rms_v > view_rms_factor * np.sqrt(2) * sigma:
-                new_used[v], new_reasons[v] = False, f"outlier: view RMS {rms_v:.2f} px > {view_rms_factor * np.sqrt(2) * sigma:.2f} px"
-                badness[v] = rms_v / sigma
-            elif m.sum() < 6:
-                new_used[v], new_reasons[v] = False, "outlier: fewer than 6 corners fit"
-                badness[v] = 1
-        keep_min = max(3, (V + 1) // 2)
-        if new_used.sum() < keep_min:  # keep the least bad views, with all their corners
-            order = np.argsort(badness, kind="stable")
-            new_used[:] = False
-            new_used[order[:keep_min]] = True
-            for v in order[:keep_min]:
-                new_reasons[v] = ""
-                if new_inl[v].sum() < 6:
-                    new_inl[v] = np.all(np.isfinite(res[v]), axis=1)
+        new_inl, new_used, new_reasons = _rejection_round(res, sel, inl, used, reasons, monotone, k_sigma, max_outlier_fraction, view_rms_factor)
         n_flips = sum(int(np.sum(a != b)) for a, b in zip(new_inl, inl))
         views_changed = not np.array_equal(new_used, used)
         n_total = sum(len(o) for o in obj)
@@ -381,6 +336,57 @@ def calibrate(
             break
     # make the final state consistent: 'inl' and 'used' are what the last solve used when we broke on no change
     return _finish(cam, model, rvecs, tvecs, obj, img, res, inl, used, reasons, it)
+
+
+def _rejection_round(res: list, sel: np.ndarray, inl: list, used: np.ndarray, reasons: list, monotone: bool, k_sigma: float, max_outlier_fraction: float,
+                     view_rms_factor: float) -> tuple[list, np.ndarray, list]:  # fmt: skip
+    """One round of :func:`calibrate`'s corner and view rules on the residuals ``res`` of every view (``sel``: the
+    views used by the solve): the new inlier corners, used views and rejection reasons. ``monotone``: rejected
+    corners and views stay rejected."""
+    V = len(res)
+    # σ from the median over ALL corners of the used views (robust; does not shrink as outliers go, so the
+    # monotone rejection settles instead of eating into the tails of a model that cannot fit exactly)
+    r_all = np.concatenate([res[v] for v in sel])
+    r_all = r_all[np.all(np.isfinite(r_all), axis=1)]
+    sigma = max(float(np.sqrt(np.median(np.sum(r_all**2, axis=1)) / (2 * np.log(2)))), 1e-3)
+    thr = k_sigma * sigma
+    new_inl = []
+    new_used = np.ones(V, bool)
+    new_reasons = [""] * V
+    badness = np.zeros(V)
+    for v in range(V):
+        if monotone and not used[v]:  # late rejections are final (stable on misfit models, terminates)
+            new_inl.append(inl[v])
+            new_used[v], new_reasons[v], badness[v] = False, reasons[v], 1e9
+            continue
+        n = np.linalg.norm(res[v], axis=1)
+        m_all = np.isfinite(n) & (n < thr)
+        m = (inl[v] & m_all) if monotone else m_all
+        new_inl.append(m)
+        frac_out = 1.0 - m_all.mean()
+        rms_v = float(np.sqrt(np.mean(n[m] ** 2))) if m.sum() else np.inf
+        if not np.all(np.isfinite(res[v])):
+            new_used[v], new_reasons[v] = False, "outlier: pose failed"
+            badness[v] = np.inf
+        elif frac_out > max_outlier_fraction:
+            new_used[v], new_reasons[v] = False, f"outlier: {frac_out:.0%} of corners beyond {thr:.2f} px (view RMS {np.sqrt(np.mean(n**2)):.2f} px)"
+            badness[v] = frac_out + 1
+        elif rms_v > view_rms_factor * np.sqrt(2) * sigma:
+            new_used[v], new_reasons[v] = False, f"outlier: view RMS {rms_v:.2f} px > {view_rms_factor * np.sqrt(2) * sigma:.2f} px"
+            badness[v] = rms_v / sigma
+        elif m.sum() < 6:
+            new_used[v], new_reasons[v] = False, "outlier: fewer than 6 corners fit"
+            badness[v] = 1
+    keep_min = max(3, (V + 1) // 2)
+    if new_used.sum() < keep_min:  # keep the least bad views, with all their corners
+        order = np.argsort(badness, kind="stable")
+        new_used[:] = False
+        new_used[order[:keep_min]] = True
+        for v in order[:keep_min]:
+            new_reasons[v] = ""
+            if new_inl[v].sum() < 6:
+                new_inl[v] = np.all(np.isfinite(res[v]), axis=1)
+    return new_inl, new_used, new_reasons
 
 
 def _residuals_all(cam, model, rvecs, tvecs, obj, img):

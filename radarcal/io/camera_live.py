@@ -17,7 +17,7 @@ import numpy as np
 from radarcal.errors import InputError
 from radarcal.io import clock
 
-__all__ = ["CameraHealth", "LiveCamera", "LiveFrame"]
+__all__ = ["CameraHealth", "LiveCamera", "LiveFrame", "VideoFileFrames"]
 
 
 @dataclass
@@ -156,3 +156,39 @@ class LiveCamera:
                     i += 1
         finally:
             self.close()
+
+
+class VideoFileFrames:
+    """A video file read at its own frame rate as a live camera would deliver it: iterating yields
+    ``(t, name, image)`` with host-clock receive times (:func:`radarcal.io.clock.now`), frame names ``000000`` ...,
+    waiting (in steps of at most 5 ms) until each frame is due; ends with the file. ``release()`` closes it."""
+
+    def __init__(self, path: str):
+        import cv2
+
+        from pathlib import Path
+
+        if not Path(path).is_file():
+            raise InputError(path, "video file not found")
+        self._cap = cv2.VideoCapture(path)
+        if not self._cap.isOpened():
+            raise InputError(path, "cannot open video")
+        self.fps = self._cap.get(cv2.CAP_PROP_FPS) or 30.0
+
+    def __iter__(self) -> Iterator[tuple[float, str, np.ndarray]]:
+        next_frame = time.monotonic()
+        k = 0
+        while True:
+            now = time.monotonic()
+            if now < next_frame:
+                time.sleep(min(0.005, next_frame - now))
+                continue
+            ok, img = self._cap.read()
+            if not ok:
+                return
+            yield clock.now(), f"{k:06d}", img
+            k += 1
+            next_frame += 1.0 / self.fps
+
+    def release(self) -> None:
+        self._cap.release()

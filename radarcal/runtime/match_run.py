@@ -380,18 +380,9 @@ def open_detector(o: RunOptions, log: Callable[[str], None]):
     from radarcal.runtime.detector import OnnxDetector, read_class_names
     from radarcal.runtime.stages import DetectAhead, NumberClassifier, Recogniser
 
-    anchor_cfg = None
-    if o.anchors is not None:
-        import yaml
+    from radarcal.io.detector_files import read_anchor_config
 
-        from radarcal.errors import read_text
-
-        try:
-            anchor_cfg = yaml.safe_load(read_text(o.anchors, "anchor config"))
-        except yaml.YAMLError:
-            raise InputError(o.anchors, "anchor config: not valid YAML") from None
-        if not isinstance(anchor_cfg, dict) or "anchors" not in anchor_cfg:
-            raise InputError(o.anchors, "anchor config: expected a mapping with anchors:")
+    anchor_cfg = read_anchor_config(o.anchors) if o.anchors is not None else None
 
     def names_of(p):
         return read_class_names(p) if p else None

@@ -19,7 +19,7 @@ from radarcal.geometry import invert_T
 from radarcal.synth.board_render import BoardRenderer, RenderSettings, bad_view_amplitude, board_truth_pixels, bow_warp, render_blank
 from radarcal.synth.board_views import BoardView, model_name, plan_views, video_trajectory
 
-__all__ = ["write_board_set", "load_board_truth", "BoardTruth", "TRUTH_FORMAT"]
+__all__ = ["write_board_set", "board_set_summary", "load_board_truth", "BoardTruth", "TRUTH_FORMAT"]
 
 TRUTH_FORMAT = "radarcal-synth-board/1"
 
@@ -260,3 +260,23 @@ def load_board_truth(path: str | os.PathLike) -> BoardTruth:
         views.append(v)
     return BoardTruth(file.parent, Camera.from_dict(raw["camera"]), BoardSpec.from_dict(raw["board"]),
                       np.asarray(raw["object_points"], float), views, raw)
+
+
+def board_set_summary(truth: dict, out_dir: str | Path, seconds: float) -> dict:
+    """What ``radarcal synth board`` reports of a written set: camera, board, files by kind, video and stereo parts."""
+    files = truth["files"]
+    summary = {
+        "out_dir": str(out_dir),
+        "truth": str(Path(out_dir) / "truth.json"),
+        "model": truth["model"],
+        "camera": truth["camera"],
+        "board": truth["board"],
+        "n_files": len(files["all"]),
+        "files": {k: v for k, v in files.items() if k != "all"},
+        "seconds": round(seconds, 2),
+    }
+    if "video" in truth:
+        summary["video"] = {k: truth["video"][k] for k in ("file", "fps", "n_frames", "keyframes")}
+    if "stereo" in truth:
+        summary["stereo"] = {k: v for k, v in truth["stereo"].items() if k != "files1"}
+    return summary

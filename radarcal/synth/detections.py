@@ -322,9 +322,6 @@ def _fmt(x: float, nd: int = 4) -> float:
 def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchConfig, generator: str = "radarcal synth match", progress: Callable | None = None) -> dict:
     """Generate the scene for ``cfg`` and write a replay folder (clouds/, detections.jsonl, truth.jsonl, calib.yaml,
     meta.json, truth.json; no images). Returns a summary."""
-    from radarcal.bundle import Bundle, Provenance, save_bundle
-    from radarcal.io import write_pcd
-
     out = Path(out_dir)
     (out / "clouds").mkdir(parents=True, exist_ok=True)
     rng_rig, rng_rob, rng_lidar, rng_det, rng_cal = (np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed + 7919).spawn(5))
@@ -337,22 +334,35 @@ def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchC
         raise ValueError(f"scenario: expected random or occlusion, got {cfg.scenario!r}")
     enemy = "blue" if cfg.station == "red" else "red"
     scene = _Scene(field_model, robots, cfg, f"{enemy}_6" if cfg.aerial and cfg.scenario == "random" else None)
+    track = progress or (lambda it, **_: it)
+    t_arrive, hits_per_cloud, n_pts_total = _write_match_clouds(out, field_model, scene, rig.T_field_lidar, cfg, rng_lidar, track)
+    counts = _write_match_frames(out, field_model, scene, rig, cfg, rng_det, t_arrive, hits_per_cloud, track)
+    _write_still(out, field_model, rig)
+    err, pnp_names = _write_match_bundle(out / "calib.yaml", field_model, rig, cfg, rng_cal, generator)
+    labels = scene.labels
+    truth = {"seed": cfg.seed, "field": field_model.name, "config": asdict(cfg), "labels": labels, "T_cam0_lidar0": rig.T_cam_lidar.tolist(),
+             "T_field_cam0": rig.T_field_cam.tolist(), "bundle_errors": err, "pnp_landmarks": pnp_names, "robots": [r.to_dict() for r in robots]}  # fmt: skip
+    (out / "truth.json").write_text(json.dumps(truth, indent=1))
+    meta = {"camera": "cam0", "lidar": "lidar0", "station": cfg.station, "field": field_model.name, "fps": cfg.fps, "lidar_hz": cfg.lidar_hz, "n_frames": cfg.frames,
+            "seed": cfg.seed, "generator": generator, "cloud_stamp": "arrival", "cloud_sweep_s": 1.0 / cfg.lidar_hz, "cloud_latency_s": cfg.cloud_latency_s}  # fmt: skip
+    (out / "meta.json").write_text(json.dumps(meta, indent=1))
+    return {"out": str(out), "frames": cfg.frames, "clouds": len(t_arrive), "robots": len(labels), **counts, "cloud_points": n_pts_total, **err}
+
+
+def _write_match_clouds(out: Path, field_model: FieldModel, scene: _Scene, T_field_lidar: np.ndarray, cfg: MatchConfig, rng_lidar, track):
+    """``clouds/`` as a live sensor delivers them: points fired over the sweep, the scene re-posed every slice, each
+    cloud stamped with its arrival (sweep end + latency) in ``times.csv``. Returns the arrival times, the LiDAR returns
+    on every robot per cloud (clouds, robots) and the number of points."""
+    from radarcal.io import write_pcd
+
     labels = scene.labels
     R = len(labels)
-    cam = rig.camera
-    T_field_lidar = rig.T_field_lidar
-    track = progress or (lambda it, **_: it)
-
-    # --- LiDAR: points fired over the sweep, scene re-posed every slice; arrival = sweep end + latency
-    n = cfg.frames
-    duration = n / cfg.fps
     sweep = 1.0 / cfg.lidar_hz
-    n_clouds = int(np.floor(duration / sweep + 1e-9))
+    n_clouds = int(np.floor(cfg.frames / cfg.fps / sweep + 1e-9))
     per_slice = max(1, int(round(cfg.slice_s / sweep * cfg.lidar_points)))
     cloud_rows, hits_per_cloud = [], np.zeros((n_clouds, R), int)
     n_pts_total = 0
-    A1 = len(field_model.areas) + 1
-    n_static = len(scene.static)
+    first_robot = len(field_model.areas) + 1 + len(scene.static) + cfg.people  # object id of the first robot
     for k in track(range(n_clouds), description="clouds"):
         t_fire = k * sweep + np.arange(cfg.lidar_points) / (cfg.lidar_points * cfg.lidar_hz)
         d_l = livox_rosette_dirs(t_fire)
@@ -365,113 +375,136 @@ def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchC
         P, Y, PP = scene.at(tc)
         for j, a in enumerate(starts):
             b = min(a + per_slice, len(t_fire))
-            bx = scene.boxes(P[j], Y[j], PP[j])
-            tt, obj = raycast(field_model, bx, o_f[None], d_f[a:b])
+            tt, obj = raycast(field_model, scene.boxes(P[j], Y[j], PP[j]), o_f[None], d_f[a:b])
             t_all[a:b], obj_all[a:b] = tt, obj
         keep = np.isfinite(t_all) & (t_all > 0.05) & (t_all < 260.0)
         for i, lab in enumerate(labels):  # LiDAR dropout: that robot's returns are lost (not replaced by what is behind it)
             if cfg.lidar_miss:
-                keep &= ~((obj_all == A1 + n_static + cfg.people + i) & _in_windows(cfg.lidar_miss, lab, t_fire))
+                keep &= ~((obj_all == first_robot + i) & _in_windows(cfg.lidar_miss, lab, t_fire))
         rng_true = t_all[keep]
         pts = d_l[keep] * (rng_true + rng_lidar.normal(0, cfg.lidar_range_sigma, rng_true.size))[:, None]
-        robot_idx = obj_all[keep] - (A1 + n_static + cfg.people)
+        robot_idx = obj_all[keep] - first_robot
         hits_per_cloud[k] = np.bincount(robot_idx[(robot_idx >= 0) & (robot_idx < R)], minlength=R)
-        kind = np.where(robot_idx >= 0, 60.0, np.where(obj_all[keep] >= A1, 90.0, 25.0))
+        kind = np.where(robot_idx >= 0, 60.0, np.where(obj_all[keep] >= len(field_model.areas) + 1, 90.0, 25.0))
         inten = np.clip(kind + rng_lidar.normal(0, 3.0, kind.size), 0, 255).astype(np.float32)
         name = f"{k:06d}.pcd"
         write_pcd(out / "clouds" / name, pts.astype(np.float32), inten)
         cloud_rows.append((name, (k + 1) * sweep + cfg.cloud_latency_s))
         n_pts_total += len(pts)
     (out / "clouds" / "times.csv").write_text("file,t\n" + "".join(f"{a},{b:.6f}\n" for a, b in cloud_rows))
-    t_arrive = np.array([b for _, b in cloud_rows])
+    return np.array([b for _, b in cloud_rows]), hits_per_cloud, n_pts_total
 
-    # --- camera frames: visible-part boxes, misses, false positives, swaps
-    t_img = np.arange(n) / cfg.fps
+
+def _write_match_frames(out: Path, field_model: FieldModel, scene: _Scene, rig, cfg: MatchConfig, rng_det, t_arrive: np.ndarray, hits_per_cloud: np.ndarray, track) -> dict:
+    """``detections.jsonl`` and ``truth.jsonl``, one line per camera frame: visible-part boxes, misses, false
+    positives, label swaps. Returns the counts of the summary."""
+    labels = scene.labels
+    R = len(labels)
+    t_img = np.arange(cfg.frames) / cfg.fps
     P, Y, PP = scene.at(t_img)
     det_lines, truth_lines = [], []
-    n_vis = n_det = n_fp = n_swap = 0
-    for f in track(range(n), description="frames"):
+    counts = {"visible_robot_frames": 0, "boxes": 0, "false_positives": 0, "label_swaps": 0}
+    for f in track(range(cfg.frames), description="frames"):
         bx = scene.boxes(P[f], Y[f], PP[f])
-        rob_k = list(range(len(bx) - R, len(bx)))
-        vb, frac, full = visible_boxes(field_model, cam, rig.T_field_cam, bx, rob_k)
+        vb, frac, full = visible_boxes(field_model, rig.camera, rig.T_field_cam, bx, list(range(len(bx) - R, len(bx))))
         last = int(np.searchsorted(t_arrive, t_img[f] + 1e-9, "right")) - 1
-        dets, truth = [], []
-        for i, lab in enumerate(labels):
-            if _in_windows(cfg.absent, lab, t_img[f : f + 1])[0]:
-                continue  # truly not on the field: no box, not in the truth
-            visible = bool(np.isfinite(vb[i, 0]))
-            n_vis += visible
-            cam_miss = bool(_in_windows(cfg.camera_miss, lab, t_img[f : f + 1])[0])
-            truth.append({"label": lab, "p_field": [_fmt(v) for v in P[f, i]], "visible": visible, "visible_fraction": _fmt(frac[i], 3),
-                          "in_view": bool(np.isfinite(full[i, 0])), "lidar_hits": int(hits_per_cloud[last, i]) if last >= 0 else 0,
-                          "xyxy": None if not visible else [_fmt(v, 2) for v in vb[i]], **({"camera_miss": True} if cam_miss else {}),
-                          **({"lidar_miss": True} if _in_windows(cfg.lidar_miss, lab, t_img[f : f + 1])[0] else {})})  # fmt: skip
-            if not visible or frac[i] < cfg.min_visible or rng_det.random() < cfg.miss:
-                continue
-            b = vb[i] + rng_det.normal(0, rng_det.uniform(*cfg.jitter_px), 4)
-            b = np.array([min(b[0], b[2] - 2), min(b[1], b[3] - 2), max(b[2], b[0] + 2), max(b[3], b[1] + 2)])
-            b = np.clip(b, -0.5, [cam.width - 0.5, cam.height - 0.5, cam.width - 0.5, cam.height - 0.5])
-            out_lab = lab
-            if lab.split("_")[1] in ("3", "4") and rng_det.random() < cfg.swap:
-                out_lab = _swap_label(lab)
-                n_swap += 1
-            score = _fmt(rng_det.uniform(0.55, 0.98), 3)
-            if cam_miss:  # dropped after its noise was drawn: the other boxes keep the noise of the replay without the window
-                continue
-            dets.append({"xyxy": [_fmt(v, 2) for v in b], "label": out_lab, "score": score})
-            n_det += 1
-        for _ in range(rng_det.poisson(cfg.false_positives)):
-            lab = str(rng_det.choice(_ALL_LABELS))
-            ppl_k = list(range(len(bx) - R - cfg.people, len(bx) - R))
-            pb = None
-            if ppl_k and rng_det.random() < 0.5:  # on a person at the boundary
-                pv, _, _ = visible_boxes(field_model, cam, rig.T_field_cam, bx, [int(rng_det.choice(ppl_k))])
-                if np.isfinite(pv[0, 0]):
-                    pb = pv[0] + rng_det.normal(0, 4, 4)
-            if pb is None:  # somewhere on the field, robot-sized for that range
-                xy = rng_det.uniform([1, 1], np.array(field_model.size) - 1)
-                g = np.array([xy[0], xy[1], float(field_model.surface_z(xy[None])[0])])
-                pb = image_box(cam, geometry.invert_T(rig.T_field_cam), g, np.array([0.5, 0.5, 0.45]), 0.0)
-                if pb is None:
-                    continue
-            if pb[2] - pb[0] < 3 or pb[3] - pb[1] < 3:
-                continue
-            dets.append({"xyxy": [_fmt(v, 2) for v in pb], "label": lab, "score": _fmt(rng_det.uniform(0.3, 0.75), 3)})
-            n_fp += 1
+        hits = hits_per_cloud[last] if last >= 0 else np.zeros(R, int)
+        dets, truth = _robot_boxes(cfg, rig.camera, labels, t_img[f : f + 1], P[f], vb, frac, full, hits, rng_det, counts)
+        fps = _false_positive_boxes(field_model, rig, bx, R, cfg, rng_det)
+        counts["false_positives"] += len(fps)
         people = [{"p_field": [_fmt(v) for v in PP[f, k]]} for k in range(cfg.people)]
         fname = f"{f:06d}.jpg"
-        det_lines.append(json.dumps({"t": _fmt(t_img[f], 6), "frame": fname, "boxes": dets}))
+        det_lines.append(json.dumps({"t": _fmt(t_img[f], 6), "frame": fname, "boxes": dets + fps}))
         truth_lines.append(json.dumps({"t": _fmt(t_img[f], 6), "frame": fname, "robots": truth, "people": people}))
     (out / "detections.jsonl").write_text("\n".join(det_lines) + "\n")
-    # one still of the static scene (the replay reader wants an image; the detections drive every frame)
+    (out / "truth.jsonl").write_text("\n".join(truth_lines) + "\n")
+    return counts
+
+
+def _robot_boxes(cfg: MatchConfig, cam, labels: list[str], t_f: np.ndarray, p_f: np.ndarray, vb: np.ndarray, frac: np.ndarray, full: np.ndarray, hits: np.ndarray,
+                 rng_det, counts: dict) -> tuple[list, list]:  # fmt: skip
+    """One frame's robot detections (jittered visible-part boxes; misses, swaps 3 <-> 4, camera-miss windows) and
+    truth entries; adds to ``counts``. ``t_f``: the frame time as a 1-element array."""
+    dets, truth = [], []
+    for i, lab in enumerate(labels):
+        if _in_windows(cfg.absent, lab, t_f)[0]:
+            continue  # truly not on the field: no box, not in the truth
+        visible = bool(np.isfinite(vb[i, 0]))
+        counts["visible_robot_frames"] += visible
+        cam_miss = bool(_in_windows(cfg.camera_miss, lab, t_f)[0])
+        truth.append({"label": lab, "p_field": [_fmt(v) for v in p_f[i]], "visible": visible, "visible_fraction": _fmt(frac[i], 3),
+                      "in_view": bool(np.isfinite(full[i, 0])), "lidar_hits": int(hits[i]),
+                      "xyxy": None if not visible else [_fmt(v, 2) for v in vb[i]], **({"camera_miss": True} if cam_miss else {}),
+                      **({"lidar_miss": True} if _in_windows(cfg.lidar_miss, lab, t_f)[0] else {})})  # fmt: skip
+        if not visible or frac[i] < cfg.min_visible or rng_det.random() < cfg.miss:
+            continue
+        b = vb[i] + rng_det.normal(0, rng_det.uniform(*cfg.jitter_px), 4)
+        b = np.array([min(b[0], b[2] - 2), min(b[1], b[3] - 2), max(b[2], b[0] + 2), max(b[3], b[1] + 2)])
+        b = np.clip(b, -0.5, [cam.width - 0.5, cam.height - 0.5, cam.width - 0.5, cam.height - 0.5])
+        out_lab = lab
+        if lab.split("_")[1] in ("3", "4") and rng_det.random() < cfg.swap:
+            out_lab = _swap_label(lab)
+            counts["label_swaps"] += 1
+        score = _fmt(rng_det.uniform(0.55, 0.98), 3)
+        if cam_miss:  # dropped after its noise was drawn: the other boxes keep the noise of the replay without the window
+            continue
+        dets.append({"xyxy": [_fmt(v, 2) for v in b], "label": out_lab, "score": score})
+        counts["boxes"] += 1
+    return dets, truth
+
+
+def _false_positive_boxes(field_model: FieldModel, rig, bx: SceneBoxes, R: int, cfg: MatchConfig, rng_det) -> list[dict]:
+    """Poisson(``cfg.false_positives``) wrong boxes on one frame, labels drawn from every robot label: on a person
+    at the boundary, or robot-sized somewhere on the field."""
+    cam = rig.camera
+    dets = []
+    for _ in range(rng_det.poisson(cfg.false_positives)):
+        lab = str(rng_det.choice(_ALL_LABELS))
+        ppl_k = list(range(len(bx) - R - cfg.people, len(bx) - R))
+        pb = None
+        if ppl_k and rng_det.random() < 0.5:  # on a person at the boundary
+            pv, _, _ = visible_boxes(field_model, cam, rig.T_field_cam, bx, [int(rng_det.choice(ppl_k))])
+            if np.isfinite(pv[0, 0]):
+                pb = pv[0] + rng_det.normal(0, 4, 4)
+        if pb is None:  # somewhere on the field, robot-sized for that range
+            xy = rng_det.uniform([1, 1], np.array(field_model.size) - 1)
+            g = np.array([xy[0], xy[1], float(field_model.surface_z(xy[None])[0])])
+            pb = image_box(cam, geometry.invert_T(rig.T_field_cam), g, np.array([0.5, 0.5, 0.45]), 0.0)
+            if pb is None:
+                continue
+        if pb[2] - pb[0] < 3 or pb[3] - pb[1] < 3:
+            continue
+        dets.append({"xyxy": [_fmt(v, 2) for v in pb], "label": lab, "score": _fmt(rng_det.uniform(0.3, 0.75), 3)})
+    return dets
+
+
+def _write_still(out: Path, field_model: FieldModel, rig) -> None:
+    """One still of the static scene in ``images/`` (the replay reader wants an image; the detections drive every frame)."""
     import cv2
 
     (out / "images").mkdir(exist_ok=True)
-    still = cv2.resize(render_background(field_model, rig, 0.25)[0], cam.image_size, interpolation=cv2.INTER_LINEAR)
+    still = cv2.resize(render_background(field_model, rig, 0.25)[0], rig.camera.image_size, interpolation=cv2.INTER_LINEAR)
     cv2.imwrite(str(out / "images" / "000000.jpg"), still, [cv2.IMWRITE_JPEG_QUALITY, 70])
     (out / "images" / "times.csv").write_text("file,t\n000000.jpg,0.000000\n")
-    (out / "truth.jsonl").write_text("\n".join(truth_lines) + "\n")
 
-    # --- the calibration a station would have: LiDAR-camera off by 0.3 deg / 2 cm, field pose from a click PnP
+
+def _write_match_bundle(path: Path, field_model: FieldModel, rig, cfg: MatchConfig, rng_cal, generator: str) -> tuple[dict, list[str]]:
+    """The calibration a station would have: LiDAR-camera off by ``calib_rot_deg`` / ``calib_trans_m``, the field
+    pose from a four-point click PnP. Returns the field pose's errors and the landmarks clicked."""
+    from radarcal.bundle import Bundle, Provenance, save_bundle
+
     T_cam_lidar_est = perturb_T(rig.T_cam_lidar, cfg.calib_rot_deg, cfg.calib_trans_m, rng_cal)
     T_field_cam_est, pnp_names = four_point_pnp(field_model, rig, cfg.pnp_px, rng_cal)
     bnd = Bundle()
     prov = Provenance(command=generator)
-    bnd.set_camera("cam0", cam, rms_px=0.3, provenance=prov, extra={"synthetic": True})
+    bnd.set_camera("cam0", rig.camera, rms_px=0.3, provenance=prov, extra={"synthetic": True})
     bnd.set_sensor("lidar0", type="lidar", model="Livox Mid-70 (simulated, per-point firing time)", fov_deg=70.4)
     bnd.set_transform("cam0", "lidar0", T_cam_lidar_est, method=f"synthetic truth perturbed {cfg.calib_rot_deg} deg / {cfg.calib_trans_m} m",
                       sigma={"rot_deg": cfg.calib_rot_deg, "trans_m": cfg.calib_trans_m}, provenance=prov)  # fmt: skip
     bnd.set_transform("field", "cam0", T_field_cam_est, method=f"four-point PnP ({', '.join(pnp_names)}), {cfg.pnp_px} px clicks", provenance=prov)
     bnd.field_model = field_model.to_dict()
-    save_bundle(bnd, out / "calib.yaml")
+    save_bundle(bnd, path)
     dR = geometry.invert_T(rig.T_field_cam) @ T_field_cam_est
     err = {"field_pose_rot_deg": float(np.rad2deg(np.arccos(np.clip((np.trace(dR[:3, :3]) - 1) / 2, -1, 1)))),
            "field_pose_cam_centre_m": float(np.linalg.norm(T_field_cam_est[:3, 3] - rig.T_field_cam[:3, 3]))}  # fmt: skip
-    truth = {"seed": cfg.seed, "field": field_model.name, "config": asdict(cfg), "labels": labels, "T_cam0_lidar0": rig.T_cam_lidar.tolist(),
-             "T_field_cam0": rig.T_field_cam.tolist(), "bundle_errors": err, "pnp_landmarks": pnp_names, "robots": [r.to_dict() for r in robots]}  # fmt: skip
-    (out / "truth.json").write_text(json.dumps(truth, indent=1))
-    meta = {"camera": "cam0", "lidar": "lidar0", "station": cfg.station, "field": field_model.name, "fps": cfg.fps, "lidar_hz": cfg.lidar_hz, "n_frames": n,
-            "seed": cfg.seed, "generator": generator, "cloud_stamp": "arrival", "cloud_sweep_s": sweep, "cloud_latency_s": cfg.cloud_latency_s}  # fmt: skip
-    (out / "meta.json").write_text(json.dumps(meta, indent=1))
-    return {"out": str(out), "frames": n, "clouds": n_clouds, "robots": R, "visible_robot_frames": n_vis, "boxes": n_det, "false_positives": n_fp,
-            "label_swaps": n_swap, "cloud_points": n_pts_total, **err}  # fmt: skip
+    return err, pnp_names

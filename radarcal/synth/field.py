@@ -41,6 +41,9 @@ __all__ = [
     "render_background",
     "render_frame",
     "write_field_replay",
+    "write_frame_jpeg",
+    "write_lidar_clouds",
+    "write_truth_bundle",
     "ROBOT_TYPES",
 ]
 
@@ -488,11 +491,6 @@ def _fmt(x: float, nd: int = 4) -> float:
 
 def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: FieldSceneConfig, generator: str = "radarcal synth field", progress: Callable | None = None) -> dict:
     """Generate the scene for ``config`` and write the replay folder. Returns a summary dict."""
-    import cv2
-
-    from radarcal.bundle import Bundle, Provenance, save_bundle
-    from radarcal.io import write_pcd
-
     out = Path(out_dir)
     (out / "images").mkdir(parents=True, exist_ok=True)
     (out / "clouds").mkdir(parents=True, exist_ok=True)
@@ -500,105 +498,15 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
     rng_rig, rng_rob, rng_lidar, rng_det = (np.random.default_rng(s) for s in ss.spawn(4))
     rig = default_rig(field_model, rng_rig, config.station)
     robots = make_robots(field_model, config.robots, rng_rob, config.speed, config.station)
-    cam = rig.camera
-    T_cam_field = geometry.invert_T(rig.T_field_cam)
     track = progress or (lambda it, **_: it)
-
-    # landmarks' true pixels
-    names = list(field_model.landmarks)
-    P = field_model.landmark_array(names)
-    uv, valid, _ = cam.project_from(T_cam_field, P)
-    inimg = valid & cam.in_image(uv)
-    landmark_px = {n: [float(uv[i, 0]), float(uv[i, 1])] for i, n in enumerate(names) if inimg[i]}
-    # landmarks hidden behind the field solid or a structure (a person could not click them)
-    dvec = P - rig.T_field_cam[:3, 3]
-    dist = np.linalg.norm(dvec, axis=1)
-    t_hit, _ = raycast(field_model, scene_boxes(field_model), rig.T_field_cam[:3, 3][None], dvec / dist[:, None])
-    hidden = [n for i, n in enumerate(names) if inimg[i] and np.isfinite(t_hit[i]) and t_hit[i] < dist[i] - 0.05]
-
-    # camera frames
-    n = config.frames
-    t_img = np.arange(n) / config.fps
-    p_all, yaw_all = robot_states(field_model, robots, t_img)
-    background = render_background(field_model, rig, config.image_scale)
-    static = scene_boxes(field_model)
-    o_cam = rig.T_field_cam[:3, 3]
-    det_lines, truth_lines, img_times = [], [], []
-    n_vis = 0
-    for f in track(range(n), description="frames"):
-        fname = f"{f:06d}.jpg"
-        boxes_f = scene_boxes(field_model, robots, p_all[f], yaw_all[f])
-        if f % max(1, config.image_every) == 0:
-            ns = len(static)
-            robots_f = SceneBoxes(boxes_f.center[ns:], boxes_f.size[ns:], boxes_f.yaw[ns:], boxes_f.names[ns:], boxes_f.kinds[ns:], boxes_f.colors[ns:])
-            img = render_frame(field_model, rig, background, robots_f, config.image_scale)
-            ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(config.jpeg_quality)])
-            if not ok:
-                raise RuntimeError(f"JPEG encoding failed for frame {f}")
-            (out / "images" / fname).write_bytes(buf.tobytes())
-            img_times.append((fname, t_img[f]))
-        rob_truth, dets = [], []
-        for k, r in enumerate(robots):
-            c, size, yw = p_all[f, k], np.asarray(r.size), yaw_all[f, k]
-            bb = image_box(cam, T_cam_field, c, size, yw)
-            visible = False
-            if bb is not None:
-                # visible if any of 9 points on the box (corners + centre) is in the image and not occluded
-                pts = np.vstack([box_corners(c, size * [0.98, 0.98, 0.98], yw), c + [0, 0, size[2] / 2]])
-                uvp, vp, _ = cam.project_from(T_cam_field, pts)
-                dvec = pts - o_cam
-                dist = np.linalg.norm(dvec, axis=1)
-                tt, obj = raycast(field_model, boxes_f, o_cam[None], dvec / dist[:, None])
-                own = obj == len(field_model.areas) + 1 + len(static) + k
-                unblocked = own | (np.nan_to_num(tt, nan=np.inf) >= dist - 0.05)
-                visible = bool(np.any(vp & cam.in_image(uvp) & unblocked))
-            rob_truth.append({"id": r.label, "label": r.label, "p_field": [_fmt(v) for v in c], "yaw": _fmt(yw), "xyxy": None if bb is None else [_fmt(v, 2) for v in bb], "visible": visible})
-            if visible:
-                n_vis += 1
-                if rng_det.random() < config.det_dropout:
-                    continue
-                b = bb + (rng_det.normal(0, config.det_jitter_px, 4) if config.det_jitter_px > 0 else 0)
-                b = np.clip(b, [-0.5, -0.5, -0.5, -0.5], [cam.width - 0.5, cam.height - 0.5] * 2)
-                dets.append({"xyxy": [_fmt(v, 2) for v in b], "label": r.label, "score": _fmt(rng_det.uniform(0.6, 0.99), 3)})
-        det_lines.append(json.dumps({"t": _fmt(t_img[f], 6), "frame": fname, "boxes": dets}))
-        truth_lines.append(json.dumps({"t": _fmt(t_img[f], 6), "frame": fname, "robots": rob_truth}))
-    (out / "detections.jsonl").write_text("\n".join(det_lines) + "\n")
-    (out / "truth.jsonl").write_text("\n".join(truth_lines) + "\n")
-    (out / "images" / "times.csv").write_text("file,t\n" + "".join(f"{a},{b:.6f}\n" for a, b in img_times))
-
-    # LiDAR frames
-    duration = n / config.fps
-    n_clouds = int(np.floor(duration * config.lidar_hz + 1e-9))
-    t_cloud = np.arange(n_clouds) / config.lidar_hz
-    p_c, yaw_c = robot_states(field_model, robots, t_cloud)
-    cloud_times = []
-    n_points_total = 0
-    for k in track(range(n_clouds), description="clouds"):
-        boxes_k = scene_boxes(field_model, robots, p_c[k], yaw_c[k])
-        pts, inten, _, _ = simulate_lidar(field_model, boxes_k, rig.T_field_lidar, t_cloud[k], config.lidar_points, rng_lidar, point_rate=config.lidar_points * config.lidar_hz, range_sigma=config.lidar_range_sigma)
-        if config.lidar_gap is not None and config.lidar_gap[0] <= t_cloud[k] < config.lidar_gap[0] + config.lidar_gap[1]:
-            continue  # the rng was still advanced, so the clouds outside the gap do not depend on it
-        cname = f"{k:06d}.pcd"
-        write_pcd(out / "clouds" / cname, pts, inten)
-        cloud_times.append((cname, t_cloud[k]))
-        n_points_total += len(pts)
-    (out / "clouds" / "times.csv").write_text("file,t\n" + "".join(f"{a},{b:.6f}\n" for a, b in cloud_times))
-
-    # calibration bundle and truth
-    b = Bundle()
-    prov = Provenance(command=generator)
-    b.set_camera("cam0", cam, rms_px=0.0, provenance=prov, extra={"synthetic": True})
-    b.set_sensor("lidar0", type="lidar", model="Livox Mid-70 (simulated)", fov_deg=70.4)
-    b.set_transform("cam0", "lidar0", rig.T_cam_lidar, method="synthetic truth", provenance=prov)
-    b.set_transform("field", "cam0", rig.T_field_cam, method="synthetic truth", provenance=prov)
-    b.field_model = field_model.to_dict()
-    save_bundle(b, out / "calib.yaml")
-
-    cfg = asdict(config)
+    landmark_px, hidden = _landmark_pixels(field_model, rig)
+    n_images, n_vis = _write_camera_frames(out, field_model, rig, robots, config, rng_det, track)
+    n_clouds, n_points_total = write_lidar_clouds(out / "clouds", field_model, robots, rig.T_field_lidar, config, rng_lidar, track, gap=config.lidar_gap)
+    write_truth_bundle(out / "calib.yaml", field_model, {"cam0": rig}, generator, {"cam0": {}})
     truth = {
         "seed": config.seed,
         "field": field_model.name,
-        "camera": cam.to_dict(),
+        "camera": rig.camera.to_dict(),
         "T_cam0_lidar0": rig.T_cam_lidar.tolist(),
         "T_field_cam0": rig.T_field_cam.tolist(),
         "T_field_lidar0": rig.T_field_lidar.tolist(),
@@ -608,11 +516,142 @@ def write_field_replay(out_dir: str | Path, field_model: FieldModel, config: Fie
         "robots": [r.to_dict() for r in robots],
         "noise": {"lidar_range_sigma_m": config.lidar_range_sigma, "det_jitter_px": config.det_jitter_px, "det_dropout": config.det_dropout, "image_jpeg_quality": config.jpeg_quality},
         "lidar": {"pattern": "risley rosette 121.57 Hz / -77.73 Hz, 70.4 deg circular FOV", "points_per_frame": config.lidar_points, "hz": config.lidar_hz, "gap": list(config.lidar_gap) if config.lidar_gap else None, "robots_frozen_at_cloud_stamp": True},
-        "config": cfg,
+        "config": asdict(config),
         "field_model": field_model.to_dict(),
     }
     (out / "truth.json").write_text(json.dumps(truth, indent=1))
+    n = config.frames
     meta = {"camera": "cam0", "lidar": "lidar0", "station": config.station, "field": field_model.name, "fps": config.fps, "lidar_hz": config.lidar_hz, "n_frames": n, "seed": config.seed, "generator": generator}
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
-    return {"out": str(out), "frames": n, "images": len(img_times), "clouds": len(cloud_times), "robots": len(robots), "visible_boxes": n_vis, "cloud_points": n_points_total, "landmarks_in_image": sorted(landmark_px), "bytes": size}
+    return {"out": str(out), "frames": n, "images": n_images, "clouds": n_clouds, "robots": len(robots), "visible_boxes": n_vis, "cloud_points": n_points_total, "landmarks_in_image": sorted(landmark_px), "bytes": size}
+
+
+def _landmark_pixels(field_model: FieldModel, rig: Rig) -> tuple[dict, list]:
+    """The landmarks' true pixels (those inside the image) and the names of those hidden behind the field solid or
+    a structure (a person could not click them)."""
+    cam = rig.camera
+    names = list(field_model.landmarks)
+    P = field_model.landmark_array(names)
+    uv, valid, _ = cam.project_from(geometry.invert_T(rig.T_field_cam), P)
+    inimg = valid & cam.in_image(uv)
+    landmark_px = {n: [float(uv[i, 0]), float(uv[i, 1])] for i, n in enumerate(names) if inimg[i]}
+    dvec = P - rig.T_field_cam[:3, 3]
+    dist = np.linalg.norm(dvec, axis=1)
+    t_hit, _ = raycast(field_model, scene_boxes(field_model), rig.T_field_cam[:3, 3][None], dvec / dist[:, None])
+    hidden = [n for i, n in enumerate(names) if inimg[i] and np.isfinite(t_hit[i]) and t_hit[i] < dist[i] - 0.05]
+    return landmark_px, hidden
+
+
+def write_frame_jpeg(path: Path, field_model: FieldModel, rig: Rig, background: tuple, boxes: SceneBoxes, n_static: int, scale: float, quality: int) -> None:
+    """Render the robots of ``boxes`` (those after the ``n_static`` structures) over ``background`` and write the
+    JPEG to ``path``."""
+    import cv2
+
+    s = slice(n_static, None)
+    robots = SceneBoxes(boxes.center[s], boxes.size[s], boxes.yaw[s], boxes.names[s], boxes.kinds[s], boxes.colors[s])
+    ok, buf = cv2.imencode(".jpg", render_frame(field_model, rig, background, robots, scale), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError(f"JPEG encoding failed for {path}")
+    path.write_bytes(buf.tobytes())
+
+
+def _write_camera_frames(out: Path, field_model: FieldModel, rig: Rig, robots: list[RobotSpec], config: FieldSceneConfig, rng_det, track) -> tuple[int, int]:
+    """``images/`` (every ``image_every``-th frame, ``times.csv``), ``detections.jsonl`` and ``truth.jsonl`` (one
+    line per frame); returns (images written, visible robot boxes)."""
+    n = config.frames
+    t_img = np.arange(n) / config.fps
+    p_all, yaw_all = robot_states(field_model, robots, t_img)
+    background = render_background(field_model, rig, config.image_scale)
+    ns = len(scene_boxes(field_model))
+    det_lines, truth_lines, img_times = [], [], []
+    n_vis = 0
+    for f in track(range(n), description="frames"):
+        fname = f"{f:06d}.jpg"
+        boxes_f = scene_boxes(field_model, robots, p_all[f], yaw_all[f])
+        if f % max(1, config.image_every) == 0:
+            write_frame_jpeg(out / "images" / fname, field_model, rig, background, boxes_f, ns, config.image_scale, config.jpeg_quality)
+            img_times.append((fname, t_img[f]))
+        rob_truth, dets = _frame_robots(field_model, rig, robots, boxes_f, ns, p_all[f], yaw_all[f], config, rng_det)
+        n_vis += sum(r["visible"] for r in rob_truth)
+        det_lines.append(json.dumps({"t": _fmt(t_img[f], 6), "frame": fname, "boxes": dets}))
+        truth_lines.append(json.dumps({"t": _fmt(t_img[f], 6), "frame": fname, "robots": rob_truth}))
+    (out / "detections.jsonl").write_text("\n".join(det_lines) + "\n")
+    (out / "truth.jsonl").write_text("\n".join(truth_lines) + "\n")
+    (out / "images" / "times.csv").write_text("file,t\n" + "".join(f"{a},{b:.6f}\n" for a, b in img_times))
+    return len(img_times), n_vis
+
+
+def _frame_robots(field_model: FieldModel, rig: Rig, robots: list[RobotSpec], boxes_f: SceneBoxes, n_static: int, p: np.ndarray, yaw: np.ndarray, config: FieldSceneConfig, rng_det):
+    """One frame: every robot's truth (full projected box, visible = one of 9 points on its box in the image and not
+    occluded) and the detections of the visible ones (dropout, edge jitter, score)."""
+    cam = rig.camera
+    T_cam_field = geometry.invert_T(rig.T_field_cam)
+    o_cam = rig.T_field_cam[:3, 3]
+    rob_truth, dets = [], []
+    for k, r in enumerate(robots):
+        c, size, yw = p[k], np.asarray(r.size), yaw[k]
+        bb = image_box(cam, T_cam_field, c, size, yw)
+        visible = False
+        if bb is not None:
+            pts = np.vstack([box_corners(c, size * [0.98, 0.98, 0.98], yw), c + [0, 0, size[2] / 2]])
+            uvp, vp, _ = cam.project_from(T_cam_field, pts)
+            dvec = pts - o_cam
+            dist = np.linalg.norm(dvec, axis=1)
+            tt, obj = raycast(field_model, boxes_f, o_cam[None], dvec / dist[:, None])
+            own = obj == len(field_model.areas) + 1 + n_static + k
+            unblocked = own | (np.nan_to_num(tt, nan=np.inf) >= dist - 0.05)
+            visible = bool(np.any(vp & cam.in_image(uvp) & unblocked))
+        rob_truth.append({"id": r.label, "label": r.label, "p_field": [_fmt(v) for v in c], "yaw": _fmt(yw), "xyxy": None if bb is None else [_fmt(v, 2) for v in bb], "visible": visible})
+        if visible:
+            if rng_det.random() < config.det_dropout:
+                continue
+            b = bb + (rng_det.normal(0, config.det_jitter_px, 4) if config.det_jitter_px > 0 else 0)
+            b = np.clip(b, [-0.5, -0.5, -0.5, -0.5], [cam.width - 0.5, cam.height - 0.5] * 2)
+            dets.append({"xyxy": [_fmt(v, 2) for v in b], "label": r.label, "score": _fmt(rng_det.uniform(0.6, 0.99), 3)})
+    return rob_truth, dets
+
+
+def write_lidar_clouds(folder: Path, field_model: FieldModel, robots: list[RobotSpec], T_field_lidar: np.ndarray, config: FieldSceneConfig, rng_lidar, track,
+                       gap: tuple[float, float] | None = None) -> tuple[int, int]:  # fmt: skip
+    """``folder/NNNNNN.pcd`` at ``config.lidar_hz`` over the replay (robots frozen at each cloud's stamp) and
+    ``folder/times.csv``; none in ``gap`` = (start s, duration s). Returns (clouds written, points)."""
+    from radarcal.io import write_pcd
+
+    folder.mkdir(parents=True, exist_ok=True)
+    n_clouds = int(np.floor(config.frames / config.fps * config.lidar_hz + 1e-9))
+    t_cloud = np.arange(n_clouds) / config.lidar_hz
+    p_c, yaw_c = robot_states(field_model, robots, t_cloud)
+    cloud_times = []
+    n_points = 0
+    for k in track(range(n_clouds), description="clouds"):
+        boxes_k = scene_boxes(field_model, robots, p_c[k], yaw_c[k])
+        pts, inten, _, _ = simulate_lidar(field_model, boxes_k, T_field_lidar, t_cloud[k], config.lidar_points, rng_lidar, point_rate=config.lidar_points * config.lidar_hz, range_sigma=config.lidar_range_sigma)
+        if gap is not None and gap[0] <= t_cloud[k] < gap[0] + gap[1]:
+            continue  # the rng was still advanced, so the clouds outside the gap do not depend on it
+        cname = f"{k:06d}.pcd"
+        write_pcd(folder / cname, pts, inten)
+        cloud_times.append((cname, t_cloud[k]))
+        n_points += len(pts)
+    (folder / "times.csv").write_text("file,t\n" + "".join(f"{a},{b:.6f}\n" for a, b in cloud_times))
+    return len(cloud_times), n_points
+
+
+def write_truth_bundle(path: Path, field_model: FieldModel, rigs: dict[str, Rig], generator: str, camera_extra: dict[str, dict], lidar_first: bool = False) -> None:
+    """The calibration bundle of a generated replay: every camera (``camera_extra[name]`` added to its ``extra``),
+    the LiDAR ``lidar0``, the true ``T_<camera>_lidar0`` and ``T_field_<camera>``, the field model. ``lidar_first``:
+    the sensors' order in the file (the multi-camera replays list the LiDAR first)."""
+    from radarcal.bundle import Bundle, Provenance, save_bundle
+
+    b = Bundle()
+    prov = Provenance(command=generator)
+    if lidar_first:
+        b.set_sensor("lidar0", type="lidar", model="Livox Mid-70 (simulated)", fov_deg=70.4)
+    for name, rig in rigs.items():
+        b.set_camera(name, rig.camera, rms_px=0.0, provenance=prov, extra={"synthetic": True, **camera_extra.get(name, {})})
+        if not lidar_first:
+            b.set_sensor("lidar0", type="lidar", model="Livox Mid-70 (simulated)", fov_deg=70.4)
+        b.set_transform(name, "lidar0", rig.T_cam_lidar, method="synthetic truth", provenance=prov)
+        b.set_transform("field", name, rig.T_field_cam, method="synthetic truth", provenance=prov)
+    b.field_model = field_model.to_dict()
+    save_bundle(b, path)

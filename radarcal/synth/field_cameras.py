@@ -35,7 +35,7 @@ from radarcal import geometry
 from radarcal.camera import Camera
 from radarcal.field import FieldModel
 from radarcal.synth.detections import visible_boxes
-from radarcal.synth.field import FieldSceneConfig, Rig, SceneBoxes, default_rig, make_robots, render_background, render_frame, robot_states, scene_boxes, simulate_lidar
+from radarcal.synth.field import FieldSceneConfig, Rig, SceneBoxes, default_rig, make_robots, render_background, robot_states, scene_boxes, write_frame_jpeg, write_lidar_clouds, write_truth_bundle
 
 __all__ = ["CameraSpec", "MultiCameraConfig", "parse_camera_specs", "camera_rigs", "detector_model", "write_multicam_replay"]
 
@@ -135,11 +135,6 @@ def _fmt(x: float, nd: int = 4) -> float:
 
 def write_multicam_replay(out_dir: str | Path, field_model: FieldModel, mc: MultiCameraConfig, generator: str = "radarcal synth field", progress: Callable | None = None) -> dict:
     """Generate the scene and write the multi-camera replay folder; returns a summary."""
-    import cv2
-
-    from radarcal.bundle import Bundle, Provenance, save_bundle
-    from radarcal.io import write_pcd
-
     cfg = mc.scene
     out = Path(out_dir)
     ss = np.random.SeedSequence(cfg.seed)
@@ -148,99 +143,17 @@ def write_multicam_replay(out_dir: str | Path, field_model: FieldModel, mc: Mult
     robots = make_robots(field_model, cfg.robots, rng_rob, cfg.speed, cfg.station)
     track = progress or (lambda it, **_: it)
     n = cfg.frames
-    static = scene_boxes(field_model)
-    ns = len(static)
     names = [s.name for s in mc.cameras]
     vis: dict[str, np.ndarray] = {}
     lines: dict[str, list] = {}
-    times: dict[str, np.ndarray] = {}
     n_images = n_boxes = 0
     for k, cname in enumerate(names):
-        rig = rigs[cname]
-        cam = rig.camera
-        folder = out / "cameras" / cname / "images"
-        folder.mkdir(parents=True, exist_ok=True)
-        t_img = np.arange(n) / cfg.fps + k * mc.camera_offset_s
-        gap = mc.gaps.get(cname)
-        alive = np.ones(n, bool) if gap is None else ~((t_img >= gap[0]) & (t_img < gap[0] + gap[1]))
-        times[cname] = t_img
-        p_all, yaw_all = robot_states(field_model, robots, t_img)
-        background = render_background(field_model, rig, cfg.image_scale)
-        misread = np.zeros(len(robots), bool)
-        wrong = np.array([int(rng_det.choice([m for m in _NUMBERS if m != int(r.label.split("_")[1])])) for r in robots], int)
-        v = np.zeros((n, len(robots)), bool)
-        det_lines, img_times = [], []
-        for f in track(range(n), description=f"{cname} frames"):
-            boxes_f = scene_boxes(field_model, robots, p_all[f], yaw_all[f])
-            fname = f"{f:06d}.jpg"
-            dets = []
-            vboxes, vfrac, _ = visible_boxes(field_model, cam, rig.T_field_cam, boxes_f, list(range(ns, ns + len(robots))))
-            for j, r in enumerate(robots):
-                bb = vboxes[j]  # the visible part: what a detector boxes
-                v[f, j] = vfrac[j] > 0
-                h = float(bb[3] - bb[1]) if v[f, j] else 0.0
-                model = detector_model(h)
-                if rng_det.random() < 1 / 8:  # a new spell of reading (or misreading) the number
-                    misread[j] = rng_det.random() < model["misread"]
-                    if misread[j]:
-                        wrong[j] = int(rng_det.choice([m for m in _NUMBERS if m != int(r.label.split("_")[1])]))
-                jit = rng_det.normal(0, model["jitter_px"], 4)
-                miss = rng_det.random() < model["miss"]
-                if vfrac[j] < MIN_VISIBLE or miss or not alive[f]:
-                    continue
-                b = np.clip(bb + jit, [-0.5, -0.5, -0.5, -0.5], [cam.width - 0.5, cam.height - 0.5] * 2)
-                if b[2] - b[0] < 1 or b[3] - b[1] < 1:
-                    continue
-                label = f"{r.label.split('_')[0]}_{wrong[j]}" if misread[j] else r.label
-                dets.append({"xyxy": [_fmt(x, 2) for x in b], "label": label, "score": _fmt(rng_det.uniform(0.6, 0.99), 3)})
-            if not alive[f]:
-                continue  # unplugged: no image, no detections line
-            n_boxes += len(dets)
-            det_lines.append(json.dumps({"t": _fmt(t_img[f], 6), "frame": fname, "boxes": dets}))
-            if f % max(1, cfg.image_every) == 0:
-                robots_f = SceneBoxes(boxes_f.center[ns:], boxes_f.size[ns:], boxes_f.yaw[ns:], boxes_f.names[ns:], boxes_f.kinds[ns:], boxes_f.colors[ns:])
-                ok, buf = cv2.imencode(".jpg", render_frame(field_model, rig, background, robots_f, cfg.image_scale), [cv2.IMWRITE_JPEG_QUALITY, int(cfg.jpeg_quality)])
-                if not ok:
-                    raise RuntimeError(f"JPEG encoding failed for {cname} frame {f}")
-                (folder / fname).write_bytes(buf.tobytes())
-                img_times.append((fname, t_img[f]))
-                n_images += 1
-        (out / "cameras" / cname / "detections.jsonl").write_text("\n".join(det_lines) + "\n")
-        (folder / "times.csv").write_text("file,t\n" + "".join(f"{a},{b:.6f}\n" for a, b in img_times))
-        vis[cname] = v
-        lines[cname] = [(t_img[f], p_all[f], yaw_all[f]) for f in range(n)]
-    truth_lines = []
-    for cname in names:
-        for f, (t, p, yw) in enumerate(lines[cname]):
-            rob = [{"id": r.label, "label": r.label, "p_field": [_fmt(x) for x in p[j]], "yaw": _fmt(yw[j]), "visible": bool(any(vis[c][f, j] for c in names)),
-                    "visible_in": [c for c in names if vis[c][f, j]]} for j, r in enumerate(robots)]  # fmt: skip
-            truth_lines.append((t, json.dumps({"t": _fmt(t, 6), "frame": f"{cname}/{f:06d}.jpg", "robots": rob})))
-    truth_lines.sort(key=lambda x: x[0])
-    (out / "truth.jsonl").write_text("\n".join(s for _, s in truth_lines) + "\n")
-
-    # LiDAR clouds on the first camera's clock (as synth field)
-    (out / "clouds").mkdir(parents=True, exist_ok=True)
-    t_cloud = np.arange(int(np.floor(n / cfg.fps * cfg.lidar_hz + 1e-9))) / cfg.lidar_hz
-    p_c, yaw_c = robot_states(field_model, robots, t_cloud)
-    cloud_times, n_points = [], 0
-    for k in track(range(len(t_cloud)), description="clouds"):
-        pts, inten, _, _ = simulate_lidar(field_model, scene_boxes(field_model, robots, p_c[k], yaw_c[k]), T_field_lidar, t_cloud[k], cfg.lidar_points, rng_lidar,
-                                          point_rate=cfg.lidar_points * cfg.lidar_hz, range_sigma=cfg.lidar_range_sigma)  # fmt: skip
-        write_pcd(out / "clouds" / f"{k:06d}.pcd", pts, inten)
-        cloud_times.append((f"{k:06d}.pcd", t_cloud[k]))
-        n_points += len(pts)
-    (out / "clouds" / "times.csv").write_text("file,t\n" + "".join(f"{a},{b:.6f}\n" for a, b in cloud_times))
-
-    b = Bundle()
-    prov = Provenance(command=generator)
-    b.set_sensor("lidar0", type="lidar", model="Livox Mid-70 (simulated)", fov_deg=70.4)
-    for s in mc.cameras:
-        rig = rigs[s.name]
-        b.set_camera(s.name, rig.camera, rms_px=0.0, provenance=prov, extra={"synthetic": True, "focal_mm": s.focal_mm})
-        b.set_transform(s.name, "lidar0", rig.T_cam_lidar, method="synthetic truth", provenance=prov)
-        b.set_transform("field", s.name, rig.T_field_cam, method="synthetic truth", provenance=prov)
-    b.field_model = field_model.to_dict()
-    save_bundle(b, out / "calib.yaml")
+        vis[cname], lines[cname], n_img, n_box = _write_camera(out / "cameras" / cname, field_model, rigs[cname], cname, robots, mc, k, rng_det, track)
+        n_images += n_img
+        n_boxes += n_box
+    _write_truth_lines(out / "truth.jsonl", names, robots, lines, vis)
+    n_clouds, n_points = write_lidar_clouds(out / "clouds", field_model, robots, T_field_lidar, cfg, rng_lidar, track)  # on the first camera's clock (as synth field)
+    write_truth_bundle(out / "calib.yaml", field_model, rigs, generator, {s.name: {"focal_mm": s.focal_mm} for s in mc.cameras}, lidar_first=True)
     truth = {"seed": cfg.seed, "field": field_model.name, "cameras": {s.name: {**asdict(s), "camera": rigs[s.name].camera.to_dict(), "T_field_cam": rigs[s.name].T_field_cam.tolist(),
              "T_cam_lidar0": rigs[s.name].T_cam_lidar.tolist(), "frame_offset_s": k * mc.camera_offset_s} for k, s in enumerate(mc.cameras)},
              "T_field_lidar0": T_field_lidar.tolist(), "robots": [r.to_dict() for r in robots],
@@ -251,5 +164,79 @@ def write_multicam_replay(out_dir: str | Path, field_model: FieldModel, mc: Mult
             "n_frames": n, "seed": cfg.seed, "generator": generator}  # fmt: skip
     (out / "meta.json").write_text(json.dumps(meta, indent=1))
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
-    return {"out": str(out), "frames": n, "cameras": names, "images": n_images, "clouds": len(cloud_times), "robots": len(robots), "visible_boxes": int(sum(v.sum() for v in vis.values())),
+    return {"out": str(out), "frames": n, "cameras": names, "images": n_images, "clouds": n_clouds, "robots": len(robots), "visible_boxes": int(sum(v.sum() for v in vis.values())),
             "detections": n_boxes, "cloud_points": n_points, "landmarks_in_image": [], "bytes": size}  # fmt: skip
+
+
+def _write_camera(folder: Path, field_model: FieldModel, rig: Rig, cname: str, robots: list, mc: MultiCameraConfig, k: int, rng_det, track):
+    """Camera ``k``'s ``images/`` (+ ``times.csv``) and ``detections.jsonl`` under ``folder`` (nothing while it is
+    unplugged). Returns the (frames, robots) visibility, (t, p_field, yaw) per frame, images and boxes written."""
+    cfg = mc.scene
+    n = cfg.frames
+    (folder / "images").mkdir(parents=True, exist_ok=True)
+    t_img = np.arange(n) / cfg.fps + k * mc.camera_offset_s
+    gap = mc.gaps.get(cname)
+    alive = np.ones(n, bool) if gap is None else ~((t_img >= gap[0]) & (t_img < gap[0] + gap[1]))
+    p_all, yaw_all = robot_states(field_model, robots, t_img)
+    background = render_background(field_model, rig, cfg.image_scale)
+    ns = len(scene_boxes(field_model))
+    misread = np.zeros(len(robots), bool)  # the state of each robot's number reading, in spells
+    wrong = np.array([int(rng_det.choice([m for m in _NUMBERS if m != int(r.label.split("_")[1])])) for r in robots], int)
+    v = np.zeros((n, len(robots)), bool)
+    det_lines, img_times = [], []
+    n_boxes = 0
+    for f in track(range(n), description=f"{cname} frames"):
+        boxes_f = scene_boxes(field_model, robots, p_all[f], yaw_all[f])
+        fname = f"{f:06d}.jpg"
+        dets = _detect_frame(field_model, rig, robots, boxes_f, ns, v[f], misread, wrong, bool(alive[f]), rng_det)
+        if not alive[f]:
+            continue  # unplugged: no image, no detections line
+        n_boxes += len(dets)
+        det_lines.append(json.dumps({"t": _fmt(t_img[f], 6), "frame": fname, "boxes": dets}))
+        if f % max(1, cfg.image_every) == 0:
+            write_frame_jpeg(folder / "images" / fname, field_model, rig, background, boxes_f, ns, cfg.image_scale, cfg.jpeg_quality)
+            img_times.append((fname, t_img[f]))
+    (folder / "detections.jsonl").write_text("\n".join(det_lines) + "\n")
+    (folder / "images" / "times.csv").write_text("file,t\n" + "".join(f"{a},{b:.6f}\n" for a, b in img_times))
+    return v, [(t_img[f], p_all[f], yaw_all[f]) for f in range(n)], len(img_times), n_boxes
+
+
+def _detect_frame(field_model: FieldModel, rig: Rig, robots: list, boxes_f: SceneBoxes, n_static: int, visible: np.ndarray, misread: np.ndarray, wrong: np.ndarray,
+                  alive: bool, rng_det) -> list[dict]:  # fmt: skip
+    """The pixel-dependent detector on one frame (:func:`detector_model`): boxes of the visible parts, misses,
+    jitter, number misreads in spells. Fills ``visible`` (per robot) and updates the spell state ``misread`` /
+    ``wrong`` in place; the noise is drawn for every robot, also when the camera is unplugged (``alive`` False)."""
+    cam = rig.camera
+    dets = []
+    vboxes, vfrac, _ = visible_boxes(field_model, cam, rig.T_field_cam, boxes_f, list(range(n_static, n_static + len(robots))))
+    for j, r in enumerate(robots):
+        bb = vboxes[j]  # the visible part: what a detector boxes
+        visible[j] = vfrac[j] > 0
+        h = float(bb[3] - bb[1]) if visible[j] else 0.0
+        model = detector_model(h)
+        if rng_det.random() < 1 / 8:  # a new spell of reading (or misreading) the number
+            misread[j] = rng_det.random() < model["misread"]
+            if misread[j]:
+                wrong[j] = int(rng_det.choice([m for m in _NUMBERS if m != int(r.label.split("_")[1])]))
+        jit = rng_det.normal(0, model["jitter_px"], 4)
+        miss = rng_det.random() < model["miss"]
+        if vfrac[j] < MIN_VISIBLE or miss or not alive:
+            continue
+        b = np.clip(bb + jit, [-0.5, -0.5, -0.5, -0.5], [cam.width - 0.5, cam.height - 0.5] * 2)
+        if b[2] - b[0] < 1 or b[3] - b[1] < 1:
+            continue
+        label = f"{r.label.split('_')[0]}_{wrong[j]}" if misread[j] else r.label
+        dets.append({"xyxy": [_fmt(x, 2) for x in b], "label": label, "score": _fmt(rng_det.uniform(0.6, 0.99), 3)})
+    return dets
+
+
+def _write_truth_lines(path: Path, names: list[str], robots: list, lines: dict, vis: dict) -> None:
+    """``truth.jsonl``: one line per frame of every camera, in time order, with which cameras see each robot."""
+    truth_lines = []
+    for cname in names:
+        for f, (t, p, yw) in enumerate(lines[cname]):
+            rob = [{"id": r.label, "label": r.label, "p_field": [_fmt(x) for x in p[j]], "yaw": _fmt(yw[j]), "visible": bool(any(vis[c][f, j] for c in names)),
+                    "visible_in": [c for c in names if vis[c][f, j]]} for j, r in enumerate(robots)]  # fmt: skip
+            truth_lines.append((t, json.dumps({"t": _fmt(t, 6), "frame": f"{cname}/{f:06d}.jpg", "robots": rob})))
+    truth_lines.sort(key=lambda x: x[0])
+    path.write_text("\n".join(s for _, s in truth_lines) + "\n")

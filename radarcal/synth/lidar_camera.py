@@ -37,6 +37,9 @@ __all__ = [
     "rosette_directions",
     "spinning_directions",
     "render_lidar_camera_scene",
+    "raycasting_scene",
+    "seen_from",
+    "subpixel_uv",
     "write_lidar_camera_scene",
 ]
 
@@ -259,6 +262,8 @@ def _pixel_rays(cam: Camera, uv: np.ndarray, step: int = 4) -> np.ndarray:
 
 
 def _raycast(scene, origins: np.ndarray, dirs: np.ndarray):
+    """Cast rays (origins (1,3) or (N,3), unit directions (N,3)) into an open3d ``RaycastingScene``: hit distance
+    (inf: none), geometry id, primitive normal."""
     import open3d as o3d
 
     rays = np.concatenate([np.broadcast_to(origins, dirs.shape), dirs], axis=1).astype(np.float32)
@@ -269,20 +274,15 @@ def _raycast(scene, origins: np.ndarray, dirs: np.ndarray):
     return t, gid, nrm
 
 
-def render_lidar_camera_scene(params: LidarCameraSceneParams | None = None) -> LidarCameraScene:
-    """Build and ray-cast a scene (deterministic for a seed). Pure: no files written."""
+def raycasting_scene(meshes: list[tuple[np.ndarray, np.ndarray]]):
+    """An open3d ``RaycastingScene`` of the (vertices, faces) meshes and ``obj_of(geometry ids) -> mesh index``
+    (-1: no hit)."""
     import open3d as o3d
-
-    p = params or LidarCameraSceneParams()
-    rng = np.random.default_rng(p.seed)
-    cam = p.camera or default_camera()
-    T_cam_lidar = np.asarray(p.T_cam_lidar, float) if p.T_cam_lidar is not None else default_T_cam_lidar(rng)
-    objs, boards = _build_scene(rng, p)
 
     scene = o3d.t.geometry.RaycastingScene()
     gid_to_obj = {}
-    for k, o in enumerate(objs):
-        gid = scene.add_triangles(o3d.core.Tensor(o["v"].astype(np.float32)), o3d.core.Tensor(o["f"].astype(np.uint32)))
+    for k, (v, f) in enumerate(meshes):
+        gid = scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(f.astype(np.uint32)))
         gid_to_obj[int(gid)] = k
     lut = np.full(max(gid_to_obj) + 2, -1, np.int64)
     for g_, k in gid_to_obj.items():
@@ -295,7 +295,49 @@ def render_lidar_camera_scene(params: LidarCameraSceneParams | None = None) -> L
         out[ok] = lut[gid[ok]]
         return out
 
-    # ---- LiDAR
+    return scene, obj_of
+
+
+def seen_from(scene, pts_lidar: np.ndarray, c_lidar: np.ndarray) -> np.ndarray:
+    """Which LiDAR points the camera centre ``c_lidar`` (LiDAR frame) sees unoccluded (parallax between the sensors)."""
+    to_pt = pts_lidar - c_lidar
+    dist = np.linalg.norm(to_pt, axis=1)
+    tv, _, _ = _raycast(scene, c_lidar[None, :], to_pt / dist[:, None])
+    return tv > dist - 0.01
+
+
+def subpixel_uv(w: int, h: int, ss: int) -> np.ndarray:
+    """(h*ss*w*ss, 2) pixel coordinates of an ``ss`` x ``ss`` sample grid in every pixel, row-major."""
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    uu, vv = np.meshgrid(np.arange(w * ss) // ss + np.tile(off, w), np.arange(h * ss) // ss + np.tile(off, h))
+    return np.stack([uu.ravel(), vv.ravel()], axis=1)
+
+
+def render_lidar_camera_scene(params: LidarCameraSceneParams | None = None) -> LidarCameraScene:
+    """Build and ray-cast a scene (deterministic for a seed). Pure: no files written."""
+    p = params or LidarCameraSceneParams()
+    rng = np.random.default_rng(p.seed)
+    cam = p.camera or default_camera()
+    T_cam_lidar = np.asarray(p.T_cam_lidar, float) if p.T_cam_lidar is not None else default_T_cam_lidar(rng)
+    objs, boards = _build_scene(rng, p)
+    scene, obj_of = raycasting_scene([(o["v"], o["f"]) for o in objs])
+    points, refl, obj, pts_true = _lidar_returns(rng, p, scene, obj_of, objs)
+    T_lidar_cam = geometry.invert_T(T_cam_lidar)
+    cam_visible = seen_from(scene, pts_true, T_lidar_cam[:3, 3])
+    img, id_full = _render_camera(rng, p, cam, T_lidar_cam, scene, obj_of, objs)
+    objects = [{"id": k + 1, "kind": o["kind"], "albedo": o["albedo"]} for k, o in enumerate(objs)]
+    board_out = []
+    for b in boards:
+        uvb, valid, _ = cam.project_from(T_cam_lidar, b["corners_lidar"])
+        board_out.append({"id": b["object"] + 1, "corners_lidar": b["corners_lidar"], "corners_uv": uvb, "visible": bool(np.all(valid & cam.in_image(uvb))), "size_m": b["size_m"]})
+    T_init = geometry.perturb_T(T_cam_lidar, p.init_deg, p.init_m, rng)
+    pd = {k: (v.to_dict() if isinstance(v, Camera) else v) for k, v in p.__dict__.items() if k not in ("T_cam_lidar",)}
+    return LidarCameraScene(img, id_full.astype(np.int32), points, refl.astype(np.float32), (obj + 1).astype(np.int32), cam_visible, cam, T_cam_lidar, T_init, objects, board_out, pd, [(o["v"], o["f"]) for o in objs])
+
+
+def _lidar_returns(rng, p: LidarCameraSceneParams, scene, obj_of, objs: list):
+    """The LiDAR's returns (LiDAR frame): noisy points (N,3) float32, reflectivity (albedo x incidence + noise),
+    object index of each, exact points."""
     n_pts = int(round(p.point_rate * p.duration_s))
     if p.lidar == "rosette":
         dirs = rosette_directions(n_pts, p.fov_deg, p.point_rate, phase=rng.uniform(0, 10))
@@ -313,24 +355,15 @@ def render_lidar_camera_scene(params: LidarCameraSceneParams | None = None) -> L
     cos_inc = np.abs(np.sum(nrm * dirs, axis=1))
     refl = np.clip(255 * alb * (0.3 + 0.7 * cos_inc) + rng.normal(0, 2.0, len(t)), 0, 255)
     r_noisy = t + rng.normal(0, p.range_noise_m, len(t))
-    points = (dirs * r_noisy[:, None]).astype(np.float32)
+    return (dirs * r_noisy[:, None]).astype(np.float32), refl, obj, pts_true
 
-    # occlusion seen from the camera centre (parallax between the two sensors)
-    T_lidar_cam = geometry.invert_T(T_cam_lidar)
-    c_l = T_lidar_cam[:3, 3]
-    to_pt = pts_true - c_l
-    dist = np.linalg.norm(to_pt, axis=1)
-    tv, _, _ = _raycast(scene, c_l[None, :], to_pt / dist[:, None])
-    cam_visible = tv > dist - 0.01
 
-    # ---- camera: rays of every (sub)pixel through the distorted model
+def _render_camera(rng, p: LidarCameraSceneParams, cam: Camera, T_lidar_cam: np.ndarray, scene, obj_of, objs: list):
+    """The camera image (rays of every sub-pixel through the distorted model, shaded albedo, tinted per object, sky
+    bright, noise) and the id image (object + 1 at each pixel centre, 0: sky)."""
     ss = max(1, int(p.supersample))
     w, h = cam.image_size
-    off = (np.arange(ss) + 0.5) / ss - 0.5
-    uu, vv = np.meshgrid(np.arange(w * ss) // ss + np.tile(off, w), np.arange(h * ss) // ss + np.tile(off, h))
-    uv = np.stack([uu.ravel(), vv.ravel()], axis=1)
-    rays_cam = _pixel_rays(cam, uv)
-    rays_l = rays_cam @ T_lidar_cam[:3, :3].T
+    rays_l = _pixel_rays(cam, subpixel_uv(w, h, ss)) @ T_lidar_cam[:3, :3].T
     tc, gc, nc = _raycast(scene, T_lidar_cam[:3, 3][None, :], rays_l)
     oc = obj_of(gc)
     hitc = np.isfinite(tc) & (oc >= 0)
@@ -354,15 +387,7 @@ def render_lidar_camera_scene(params: LidarCameraSceneParams | None = None) -> L
         t0, g0, _ = _raycast(scene, T_lidar_cam[:3, 3][None, :], r0)
         o0 = obj_of(g0)
         id_full = np.where(np.isfinite(t0) & (o0 >= 0), o0 + 1, 0).reshape(h, w)
-
-    objects = [{"id": k + 1, "kind": o["kind"], "albedo": o["albedo"]} for k, o in enumerate(objs)]
-    board_out = []
-    for b in boards:
-        uvb, valid, _ = cam.project_from(T_cam_lidar, b["corners_lidar"])
-        board_out.append({"id": b["object"] + 1, "corners_lidar": b["corners_lidar"], "corners_uv": uvb, "visible": bool(np.all(valid & cam.in_image(uvb))), "size_m": b["size_m"]})
-    T_init = geometry.perturb_T(T_cam_lidar, p.init_deg, p.init_m, rng)
-    pd = {k: (v.to_dict() if isinstance(v, Camera) else v) for k, v in p.__dict__.items() if k not in ("T_cam_lidar",)}
-    return LidarCameraScene(img, id_full.astype(np.int32), points, refl.astype(np.float32), (obj + 1).astype(np.int32), cam_visible, cam, T_cam_lidar, T_init, objects, board_out, pd, [(o["v"], o["f"]) for o in objs])
+    return img, id_full
 
 
 def write_lidar_camera_scene(scene: LidarCameraScene, out_dir: str | Path, command: str = "") -> dict[str, Path]:

@@ -29,7 +29,7 @@ import numpy as np
 
 from radarcal import geometry
 from radarcal.camera import Camera
-from radarcal.synth.lidar_camera import LidarCameraScene, _pixel_rays  # exact unproject on a grid, spline in between (the renderer, not the scene)
+from radarcal.synth.lidar_camera import LidarCameraScene, _pixel_rays, _raycast, raycasting_scene, seen_from, subpixel_uv  # exact unproject on a grid, spline in between (the renderer, not the scene)
 
 __all__ = ["Family2Params", "LAYOUTS", "LIDARS", "render_family2_scene", "family2_lidar_directions", "family2_camera"]
 
@@ -311,20 +311,8 @@ def _true_pose(rng) -> np.ndarray:
     return geometry.make_T(R, -R @ c_lidar)
 
 
-def _cast(rc, origin, dirs):
-    import open3d as o3d
-
-    rays = np.concatenate([np.broadcast_to(origin, dirs.shape), dirs], 1).astype(np.float32)
-    a = rc.cast_rays(o3d.core.Tensor(rays))
-    gid = a["geometry_ids"].numpy().astype(np.int64)
-    return a["t_hit"].numpy().astype(float), gid, a["primitive_normals"].numpy().astype(float)
-
-
 def render_family2_scene(params: Family2Params | None = None) -> LidarCameraScene:
     """Build and ray-cast one family-2 scene (deterministic for a seed). Pure: no files written."""
-    import open3d as o3d
-    from scipy.ndimage import gaussian_filter
-
     p = params or Family2Params()
     rng = np.random.default_rng(10_000 + p.seed)
     layout = p.layout or LAYOUTS[p.seed % 3]
@@ -336,22 +324,25 @@ def render_family2_scene(params: Family2Params | None = None) -> LidarCameraScen
     T = _true_pose(rng)
     w = _World()
     {"corridor": _corridor, "field": _field, "parking": _parking}[layout](rng, w, -height)
+    rc, obj_of = raycasting_scene([(o["v"], o["f"]) for o in w.objects])
+    points, refl, obj, pts_true, sigma_r = _family2_lidar(rng, p, lidar, w, rc, obj_of)
+    c_l = geometry.invert_T(T)[:3, 3]
+    cam_visible = seen_from(rc, pts_true, c_l)
+    img, id_img, noise = _family2_image(rng, p, cam, geometry.invert_T(T), w, rc, obj_of)
+    T_init = geometry.perturb_T(T, p.init_deg, p.init_m, rng)
+    objects = [{"id": k + 1, "kind": ob["kind"], "albedo": ob["albedo"]} for k, ob in enumerate(w.objects)]
+    model = {"avia": "livox-avia-like", "horizon": "livox-horizon-like", "spin32": "spinning-32", "spin64": "spinning-64"}[lidar]
+    pd = {"family": "family2", "seed": p.seed, "layout": layout, "lidar": lidar, "sensor_model": model, "duration_s": p.duration_s, "range_noise_m": float(sigma_r),
+          "lidar_height_m": float(height), "init_deg": p.init_deg, "init_m": p.init_m, "camera": cam.to_dict(), "image_noise": float(noise)}
+    return LidarCameraScene(img, id_img, points, refl.astype(np.float32), (obj + 1).astype(np.int32), cam_visible, cam, T, T_init, objects, [], pd,
+                            [(ob["v"], ob["f"]) for ob in w.objects])
 
-    rc = o3d.t.geometry.RaycastingScene()
-    lut = {}
-    for k, o in enumerate(w.objects):
-        lut[int(rc.add_triangles(o3d.core.Tensor(o["v"].astype(np.float32)), o3d.core.Tensor(o["f"].astype(np.uint32))))] = k
-    table = np.full(max(lut) + 1, -1, np.int64)
-    for gid, k in lut.items():
-        table[gid] = k
 
-    def obj_of(gid):
-        ok = (gid >= 0) & (gid < len(table))
-        return np.where(ok, table[np.clip(gid, 0, len(table) - 1)], -1)
-
-    # ---- LiDAR: range noise, spurious returns, NIR reflectivity, 8-bit
+def _family2_lidar(rng, p: Family2Params, lidar: str, w: _World, rc, obj_of):
+    """The LiDAR's returns: range noise, spurious short returns, NIR reflectivity in 8 bits. Returns noisy points
+    (N,3) float32, reflectivity, object index, exact points, the range sigma (m)."""
     dirs = family2_lidar_directions(lidar, p.duration_s, rng)
-    t, gid, nrm = _cast(rc, np.zeros((1, 3)), dirs)
+    t, gid, nrm = _raycast(rc, np.zeros((1, 3)), dirs)
     obj = obj_of(gid)
     hit = np.isfinite(t) & (t < 120) & (obj >= 0) & (t > 0.3)
     dirs, t, obj, nrm = dirs[hit], t[hit], obj[hit], nrm[hit]
@@ -363,22 +354,19 @@ def render_family2_scene(params: Family2Params | None = None) -> LidarCameraScen
     r = t + rng.normal(0, sigma_r, len(t))
     spurious = rng.random(len(t)) < 0.003
     r[spurious] = t[spurious] * rng.uniform(0.2, 0.95, int(spurious.sum()))
-    points = (dirs * r[:, None]).astype(np.float32)
-    T_lidar_cam = geometry.invert_T(T)
-    c_l = T_lidar_cam[:3, 3]
-    to = pts_true - c_l
-    dist = np.linalg.norm(to, axis=1)
-    tv, _, _ = _cast(rc, c_l[None], to / dist[:, None])
-    cam_visible = tv > dist - 0.01
+    return (dirs * r[:, None]).astype(np.float32), refl, obj, pts_true, sigma_r
 
-    # ---- camera
+
+def _family2_image(rng, p: Family2Params, cam: Camera, T_lidar_cam: np.ndarray, w: _World, rc, obj_of):
+    """The camera image (two lights, coloured objects, sky gradient, vignetting, gamma, blur, noise; BGR), the id
+    image (object + 1, 0: sky) and the image noise sigma."""
+    from scipy.ndimage import gaussian_filter
+
+    c_l = T_lidar_cam[:3, 3]
     wpx, hpx = cam.image_size
     ss = 2 if wpx <= 640 else 1
-    o = (np.arange(ss) + 0.5) / ss - 0.5
-    uu, vv = np.meshgrid(np.arange(wpx * ss) // ss + np.tile(o, wpx), np.arange(hpx * ss) // ss + np.tile(o, hpx))
-    uv = np.stack([uu.ravel(), vv.ravel()], 1)
-    rays = _pixel_rays(cam, uv) @ T_lidar_cam[:3, :3].T
-    tc, gc, nc = _cast(rc, c_l[None], rays)
+    rays = _pixel_rays(cam, subpixel_uv(wpx, hpx, ss)) @ T_lidar_cam[:3, :3].T
+    tc, gc, nc = _raycast(rc, c_l[None], rays)
     oc = obj_of(gc)
     hitc = np.isfinite(tc) & (oc >= 0)
     pc = c_l + rays * np.where(hitc, tc, 0)[:, None]
@@ -400,11 +388,4 @@ def render_family2_scene(params: Family2Params | None = None) -> LidarCameraScen
     noise = p.image_noise if p.image_noise is not None else rng.uniform(1.0, 4.0)
     img = np.clip(img * 240 + 8 + rng.normal(0, noise, img.shape), 0, 255).astype(np.uint8)[..., ::-1].copy()
     id_img = np.where(hitc, oc + 1, 0).reshape(hpx, ss, wpx, ss)[:, 0, :, 0].astype(np.int32)
-
-    T_init = geometry.perturb_T(T, p.init_deg, p.init_m, rng)
-    objects = [{"id": k + 1, "kind": ob["kind"], "albedo": ob["albedo"]} for k, ob in enumerate(w.objects)]
-    model = {"avia": "livox-avia-like", "horizon": "livox-horizon-like", "spin32": "spinning-32", "spin64": "spinning-64"}[lidar]
-    pd = {"family": "family2", "seed": p.seed, "layout": layout, "lidar": lidar, "sensor_model": model, "duration_s": p.duration_s, "range_noise_m": float(sigma_r),
-          "lidar_height_m": float(height), "init_deg": p.init_deg, "init_m": p.init_m, "camera": cam.to_dict(), "image_noise": float(noise)}
-    return LidarCameraScene(img, id_img, points, refl.astype(np.float32), (obj + 1).astype(np.int32), cam_visible, cam, T, T_init, objects, [], pd,
-                            [(ob["v"], ob["f"]) for ob in w.objects])
+    return img, id_img, noise

@@ -155,20 +155,34 @@ def _box(rng, centre, size, n):
 
 
 def generate_radar_session(spec: RadarSceneSpec) -> RadarSession:
-    """Build the whole session in memory (see the module docstring). Deterministic for a given ``spec``."""
+    """Build the whole session in memory (see the module docstring). Deterministic for a given ``spec``: the steps
+    draw from one generator in this order: static structure; per scene the reflectors, tripods, ground, clouds,
+    static radar returns and radar frames; last the initial guesses of ``rig.yaml``."""
     rng = np.random.default_rng(spec.seed)
-    rig = spec.rig
-    T_v_main = geometry.T_from_xyz_rpy_deg(*rig.main_lidar_pose)
-    lidars = {rig.main_lidar: T_v_main}
+    lidars, radars = _sensor_poses(spec.rig)
+    static_pts, clutter_centres = _static_structure(rng, spec)
+    scenes, truth_scenes = [], []
+    head_max = -np.inf  # tallest reflector head so far (m): the tripod poles stop below it
+    for s in range(spec.n_scenes):
+        scene, truth_scene, head_max = _scene(rng, spec, s, lidars, radars, static_pts, clutter_centres, head_max)
+        scenes.append(scene)
+        truth_scenes.append(truth_scene)
+    rig_yaml = _rig_yaml(rng, spec, lidars, radars, head_max + 0.01)
+    return RadarSession(rig_yaml, scenes, _truth(spec, lidars, radars, truth_scenes))
+
+
+def _sensor_poses(rig: RadarRigSpec) -> tuple[dict, dict]:
+    """``T_vehicle_<lidar>`` (the main LiDAR first) and ``T_vehicle_<radar>`` (level at the mounting height)."""
+    lidars = {rig.main_lidar: geometry.T_from_xyz_rpy_deg(*rig.main_lidar_pose)}
     for name, pose in rig.extra_lidars.items():
         lidars[name] = geometry.T_from_xyz_rpy_deg(*pose)
     radars = {name: geometry.T_from_xyz_rpy_deg(x, y, h, 0.0, 0.0, yaw) for name, (x, y, h, yaw) in rig.radars.items()}
-    heights = {name: float(v[2]) for name, v in rig.radars.items()}
-    main_xy = T_v_main[:2, 3]
-    main_pos = T_v_main[:3, 3]
-    half_fov = np.radians(rig.radar_fov_deg / 2)
+    return lidars, radars
 
-    # static structure (same in every scene): clutter boxes and walls beyond the range gate
+
+def _static_structure(rng, spec: RadarSceneSpec) -> tuple[np.ndarray, list]:
+    """Points of what stands in every scene (vehicle frame): clutter boxes and walls beyond the range gate, or one
+    wall ahead (``layout="ground_wall"``); and the clutter boxes' centres (radar returns)."""
     static = [np.zeros((0, 3))]
     clutter_centres = []
     if spec.layout == "ground_wall":  # one wall ahead: the ground and this wall leave the lateral direction unobserved
@@ -183,189 +197,247 @@ def generate_radar_session(spec: RadarSceneSpec) -> RadarSession:
             n = 2500
             u, v = rng.random(n), rng.random(n)
             static.append(np.stack([x0 + u * (x1 - x0), y0 + u * (y1 - y0), v * 2.5], axis=1))
-    static_pts = np.concatenate(static)
+    return np.concatenate(static), clutter_centres
 
-    edge = spec.reflector_edge
-    off = reflector_offset(edge)
-    scenes, truth_scenes = [], []
-    head_extents = []
-    for s in range(spec.n_scenes):
-        # reflector apexes ahead of the main LiDAR, spread laterally, separated
-        apex = []
-        tries = 0
-        if spec.fixed_apexes is not None:
-            apex = [np.array([main_xy[0] + f, main_xy[1] + l, h]) for f, l, h in spec.fixed_apexes[s % len(spec.fixed_apexes)]]
-        while len(apex) < spec.reflectors_per_scene and spec.fixed_apexes is None:
-            tries += 1
-            fwd = rng.uniform(*spec.reflector_forward)
-            lat = rng.uniform(*spec.reflector_lateral)
-            p = np.array([main_xy[0] + fwd, main_xy[1] + lat, rng.uniform(*spec.reflector_height)])
-            if np.hypot(fwd, lat) > 3.9:
-                continue
-            if all(np.linalg.norm(p[:2] - q[:2]) >= spec.min_separation for q in apex) or tries > 1000:
-                apex.append(p)
-        apex = np.array(apex)
-        refl_pts, pole_pts, turns, feet, bores = [], [], [], [], []
-        for p in apex:  # per reflector (few)
-            b = main_pos - p
-            turn = 0.0
-            if spec.reflector_turn_deg[1] > 0:
-                turn = np.radians(rng.uniform(*spec.reflector_turn_deg)) * rng.choice([-1.0, 1.0])
-                b = geometry.rpy_deg_to_R(0.0, 0.0, np.degrees(turn)) @ b
-            turns.append(turn)
-            bores.append(b)
-            pts = trihedral_points(p, b, edge, spec.plate_subdivisions, rng if spec.plate_sampling == "random" else None)
-            refl_pts.append(pts)
-            head_extents.append(float(np.ptp(pts[:, 2])))
-        head = max(head_extents) + 0.01
-        for p, pts in zip(apex, refl_pts):
-            zmax = pts[:, 2].max()
-            low = pts[np.argmin(pts[:, 2])]
-            if spec.tripod == "legs":  # hub below a gap (the mount is not seen), three legs splayed to the ground
-                hub = np.array([low[0], low[1], low[2] - rng.uniform(0.15, 0.25)])
-                a0 = rng.uniform(0, 2 * np.pi)
-                for k in range(3):
-                    ang = a0 + 2 * np.pi * k / 3
-                    foot = np.array([hub[0] + spec.leg_spread * np.cos(ang), hub[1] + spec.leg_spread * np.sin(ang), 0.0])
-                    u = np.linspace(0.0, 1.0, max(int(np.linalg.norm(foot - hub) / 0.015), 2))[:, None]
-                    pole_pts.append(hub + u * (foot - hub) + rng.normal(0, 0.004, (len(u), 3)))
-                    feet.append(foot)
-                continue
-            top = zmax - head - 0.015
-            zz = np.linspace(0.0, top, max(int(top / 0.02), 2))
-            pole_pts.append(np.stack([np.full_like(zz, low[0]), np.full_like(zz, low[1]), zz], axis=1))
-        # ground: uniform over a disc around the main LiDAR's footprint
-        r = 10.0 * np.sqrt(rng.random(spec.ground_points))
-        a = rng.uniform(0, 2 * np.pi, spec.ground_points)
-        ground = np.stack([main_xy[0] + r * np.cos(a), main_xy[1] + r * np.sin(a), np.zeros_like(r)], axis=1)
-        world_exact = [np.concatenate(refl_pts), np.concatenate(pole_pts)]
-        # intensity per part (drawn only when asked, so the default scenes keep their random stream)
-        lum = [(20.0, 5.0), (190.0, 20.0), (35.0, 8.0), (45.0, 10.0)]  # ground, plates, tripods, static structure
-        clouds, intens = {}, {}
-        for li, (lname, T_v_l) in enumerate(lidars.items()):
-            T_l_v = geometry.invert_T(T_v_l)
-            if li == 0:
-                parts = [ground] + world_exact + [static_pts]
-            else:  # an independent sampling of the same surfaces for every other LiDAR
-                r2 = 10.0 * np.sqrt(rng.random(spec.ground_points))
-                a2 = rng.uniform(0, 2 * np.pi, spec.ground_points)
-                g2 = np.stack([main_xy[0] + r2 * np.cos(a2), main_xy[1] + r2 * np.sin(a2), np.zeros_like(r2)], axis=1)
-                jitter = rng.normal(0, 0.01, size=static_pts.shape) * np.array([1, 1, 0])
-                own = world_exact
-                if spec.resample_per_lidar:
-                    own = [np.concatenate([trihedral_points(p, bo, edge, spec.plate_subdivisions, rng) for p, bo in zip(apex, bores)]),
-                           world_exact[1] + rng.normal(0, 0.004, world_exact[1].shape)]
-                parts = [g2] + own + [static_pts + jitter]
-            pl = geometry.transform_points(T_l_v, np.concatenate(parts))
-            it = np.concatenate([rng.normal(m, sd, len(q)) for (m, sd), q in zip(lum, parts)]) if spec.intensity else None
-            rng_ = np.linalg.norm(pl, axis=1)
-            ok = (rng_ < rig.lidar_max_range) & (rng_ > 0.3)
-            if li > 0 and spec.extra_lidar_fov_deg < 360:
-                ok &= np.abs(np.arctan2(pl[:, 1], pl[:, 0])) < np.radians(spec.extra_lidar_fov_deg) / 2
-            pl = pl[ok]
-            if spec.lidar_noise > 0:
-                rr = np.linalg.norm(pl, axis=1, keepdims=True)
-                pl = pl * (1.0 + rng.normal(0, spec.lidar_noise, size=(len(pl), 1)) / rr)
-            clouds[lname] = pl.astype(np.float32)
-            if it is not None:
-                intens[lname] = np.clip(it[ok], 0, 255).astype(np.float32)
-        # radar detections, frame by frame. Labels (truth): reflector k >= 0, -1 clutter box, -2 ghost, -3 low-RCS
-        # clutter, -4 multipath ghost (of reflector 100 + k: label -(100 + k))
-        names_out, xy_out, rcs_out, vel_out, lab_out, sig_out = [], [], [], [], [], []
-        turns = np.array(turns)
-        rcs_refl = 12.0 - 12.0 * (np.degrees(np.abs(turns)) / 45.0) ** 2  # trihedral RCS falls with the aspect angle
-        targets = [(p, float(rcs_refl[k]), k) for k, p in enumerate(apex)] + [(np.array(c), 5.0, -1) for c in clutter_centres]
-        extra = []  # static low-RCS returns and multipath ghosts: (xyz in the vehicle frame, rcs, label, radar or None)
-        if spec.low_rcs_clutter:
-            pool = list(feet) if feet else []
-            for k in range(spec.low_rcs_clutter):
-                if pool and k % 2 == 0:
-                    q = pool[int(rng.integers(len(pool)))]
-                else:
-                    q = np.array([main_xy[0] + rng.uniform(0.8, 4.5), main_xy[1] + rng.uniform(-2.5, 2.5), 0.2])
-                extra.append((np.array([q[0], q[1], 0.15]), float(rng.uniform(-10, -4)), -3, None))
-        if spec.multipath > 0:
-            for k, p in enumerate(apex):
-                for rname in radars:
-                    if rng.random() < spec.multipath:
-                        extra.append((p * np.array([1.0, 1.0, -1.0]), float(rcs_refl[k] - 8.0), -(100 + k), rname))  # mirror image below ground
-        for _f in range(spec.n_frames):
-            for rname, T_v_r in radars.items():
-                T_r_v = geometry.invert_T(T_v_r)
-                P = geometry.transform_points(T_r_v, np.array([t[0] for t in targets]).reshape(-1, 3))
-                rh = np.linalg.norm(P[:, :2], axis=1)
-                az = np.arctan2(P[:, 1], P[:, 0])
-                vis = (np.abs(az) < half_fov) & (rh < rig.radar_max_range) & (rh > 0.3)
-                vis &= rng.random(len(P)) >= spec.p_miss
-                m = P[:, :2] * (np.sqrt(rh**2 + P[:, 2] ** 2) / np.maximum(rh, 1e-9))[:, None]  # slant range
-                if spec.bad_reflector_offset and s == 0:
-                    m[0] += np.array([0.6, 0.8]) * spec.bad_reflector_offset
-                base_rcs = np.array([t[1] for t in targets])
-                sig = np.full(len(targets), spec.radar_sigma)
-                if spec.rcs_noise:
-                    sig = sig * 10 ** (np.clip(12.0 - base_rcs, 0, None) / 20)
-                m = m + _radar_noise(rng, spec, (len(m), 2)) * sig[:, None]
-                rcs = base_rcs + rng.normal(0, 1.0, len(targets))
-                ng = rng.poisson(spec.ghost_rate) if spec.ghost_rate > 0 else 0
-                g_r = rng.uniform(0.5, 8.0, ng)
-                g_a = rng.uniform(-half_fov, half_fov, ng)
-                gm = np.stack([g_r * np.cos(g_a), g_r * np.sin(g_a)], axis=1)
-                parts_m, parts_rcs = [m[vis], gm], [rcs[vis], rng.uniform(-10, 0, ng)]
-                labs = [np.array([t[2] for t in targets])[vis], np.full(ng, -2)]
-                sigs = [sig[vis], np.full(ng, np.nan)]
-                for q, c, lab, only in extra:  # static returns: same place every frame (+ noise)
-                    if only is not None and only != rname:
-                        continue
-                    Q = geometry.transform_points(T_r_v, q[None])[0]
-                    qh = np.hypot(Q[0], Q[1])
-                    if abs(np.arctan2(Q[1], Q[0])) >= half_fov or qh < 0.3:
-                        continue
-                    mq = Q[:2] * np.sqrt(qh**2 + Q[2] ** 2) / qh + _radar_noise(rng, spec, (2,)) * spec.radar_sigma * 2
-                    parts_m.append(mq[None]), parts_rcs.append(np.array([c + rng.normal(0, 1.0)])), labs.append(np.array([lab])), sigs.append(np.array([np.nan]))
-                allm, allrcs = np.concatenate(parts_m), np.concatenate(parts_rcs)
-                if spec.quantisation > 0:
-                    allm = np.round(allm / spec.quantisation) * spec.quantisation
-                names_out += [rname] * len(allm)
-                xy_out.append(allm)
-                rcs_out.append(allrcs)
-                vel_out.append(np.zeros(len(allm)))
-                lab_out.append(np.concatenate(labs))
-                sig_out.append(np.concatenate(sigs))
-        scenes.append({"name": f"{s:02d}", "clouds": clouds, "intensity": intens,
-                       "radar": {"radar": names_out, "xy": np.concatenate(xy_out).reshape(-1, 2), "rcs": np.concatenate(rcs_out), "velocity": np.concatenate(vel_out)}})
-        truth_scenes.append({"name": f"{s:02d}", "apex_vehicle": apex.tolist(), "apex_main": geometry.transform_points(geometry.invert_T(T_v_main), apex).tolist(),
-                             "turn_deg": np.degrees(turns).tolist(), "detection_label": np.concatenate(lab_out).astype(int).tolist(),
-                             "detection_sigma_m": [None if not np.isfinite(v) else float(v) for v in np.concatenate(sig_out)]})
 
-    head_size = max(head_extents) + 0.01
+def _scene(rng, spec: RadarSceneSpec, s: int, lidars: dict, radars: dict, static_pts: np.ndarray, clutter_centres: list, head_max: float):
+    """Scene ``s``: reflectors on tripods, every LiDAR's cloud, every radar's detections; its truth; the tallest
+    reflector head so far."""
+    T_v_main = lidars[spec.rig.main_lidar]
+    main_xy, main_pos = T_v_main[:2, 3], T_v_main[:3, 3]
+    apex = _place_apexes(rng, spec, s, main_xy)
+    refl_pts, turns, bores = _reflector_heads(rng, spec, apex, main_pos)
+    head_max = max([head_max, *(float(np.ptp(pts[:, 2])) for pts in refl_pts)])
+    pole_pts, feet = _tripods(rng, spec, apex, refl_pts, head_max + 0.01)
+    world_exact = [np.concatenate(refl_pts), np.concatenate(pole_pts)]
+    clouds, intens = _lidar_clouds(rng, spec, lidars, world_exact, static_pts, apex, bores)
+    radar, labels, sigmas = _radar_detections(rng, spec, s, radars, apex, turns, clutter_centres, feet, main_xy)
+    scene = {"name": f"{s:02d}", "clouds": clouds, "intensity": intens, "radar": radar}
+    truth = {"name": f"{s:02d}", "apex_vehicle": apex.tolist(), "apex_main": geometry.transform_points(geometry.invert_T(T_v_main), apex).tolist(),
+             "turn_deg": np.degrees(turns).tolist(), "detection_label": labels.astype(int).tolist(),
+             "detection_sigma_m": [None if not np.isfinite(v) else float(v) for v in sigmas]}  # fmt: skip
+    return scene, truth, head_max
+
+
+def _place_apexes(rng, spec: RadarSceneSpec, s: int, main_xy: np.ndarray) -> np.ndarray:
+    """(K,3) reflector apexes (vehicle frame) ahead of the main LiDAR, spread laterally, ``min_separation`` apart."""
+    if spec.fixed_apexes is not None:
+        return np.array([np.array([main_xy[0] + f, main_xy[1] + lat, h]) for f, lat, h in spec.fixed_apexes[s % len(spec.fixed_apexes)]])
+    apex = []
+    tries = 0
+    while len(apex) < spec.reflectors_per_scene:
+        tries += 1
+        fwd = rng.uniform(*spec.reflector_forward)
+        lat = rng.uniform(*spec.reflector_lateral)
+        p = np.array([main_xy[0] + fwd, main_xy[1] + lat, rng.uniform(*spec.reflector_height)])
+        if np.hypot(fwd, lat) > 3.9:
+            continue
+        if all(np.linalg.norm(p[:2] - q[:2]) >= spec.min_separation for q in apex) or tries > 1000:
+            apex.append(p)
+    return np.array(apex)
+
+
+def _reflector_heads(rng, spec: RadarSceneSpec, apex: np.ndarray, main_pos: np.ndarray) -> tuple[list, np.ndarray, list]:
+    """Per reflector: its plate points, its turn away from the main LiDAR (rad) and its boresight."""
+    refl_pts, turns, bores = [], [], []
+    for p in apex:  # per reflector (few)
+        b = main_pos - p
+        turn = 0.0
+        if spec.reflector_turn_deg[1] > 0:
+            turn = np.radians(rng.uniform(*spec.reflector_turn_deg)) * rng.choice([-1.0, 1.0])
+            b = geometry.rpy_deg_to_R(0.0, 0.0, np.degrees(turn)) @ b
+        turns.append(turn)
+        bores.append(b)
+        refl_pts.append(trihedral_points(p, b, spec.reflector_edge, spec.plate_subdivisions, rng if spec.plate_sampling == "random" else None))
+    return refl_pts, np.array(turns), bores
+
+
+def _tripods(rng, spec: RadarSceneSpec, apex: np.ndarray, refl_pts: list, head: float) -> tuple[list, list]:
+    """Tripod points under every reflector (a pole up to ``head`` below the head's top, or three splayed legs) and
+    the legs' feet on the ground."""
+    pole_pts, feet = [], []
+    for _p, pts in zip(apex, refl_pts):
+        zmax = pts[:, 2].max()
+        low = pts[np.argmin(pts[:, 2])]
+        if spec.tripod == "legs":  # hub below a gap (the mount is not seen), three legs splayed to the ground
+            hub = np.array([low[0], low[1], low[2] - rng.uniform(0.15, 0.25)])
+            a0 = rng.uniform(0, 2 * np.pi)
+            for k in range(3):
+                ang = a0 + 2 * np.pi * k / 3
+                foot = np.array([hub[0] + spec.leg_spread * np.cos(ang), hub[1] + spec.leg_spread * np.sin(ang), 0.0])
+                u = np.linspace(0.0, 1.0, max(int(np.linalg.norm(foot - hub) / 0.015), 2))[:, None]
+                pole_pts.append(hub + u * (foot - hub) + rng.normal(0, 0.004, (len(u), 3)))
+                feet.append(foot)
+            continue
+        top = zmax - head - 0.015
+        zz = np.linspace(0.0, top, max(int(top / 0.02), 2))
+        pole_pts.append(np.stack([np.full_like(zz, low[0]), np.full_like(zz, low[1]), zz], axis=1))
+    return pole_pts, feet
+
+
+def _ground_disc(rng, centre_xy: np.ndarray, n: int) -> np.ndarray:
+    """``n`` ground points uniform over a 10 m disc around ``centre_xy``."""
+    r = 10.0 * np.sqrt(rng.random(n))
+    a = rng.uniform(0, 2 * np.pi, n)
+    return np.stack([centre_xy[0] + r * np.cos(a), centre_xy[1] + r * np.sin(a), np.zeros_like(r)], axis=1)
+
+
+def _lidar_clouds(rng, spec: RadarSceneSpec, lidars: dict, world_exact: list, static_pts: np.ndarray, apex: np.ndarray, bores: list) -> tuple[dict, dict]:
+    """Every LiDAR's (N,3) float32 cloud in its own frame (range gate, field of view, range noise) and, with
+    ``spec.intensity``, its intensities; every LiDAR but the main one sees its own sampling of the surfaces."""
+    rig = spec.rig
+    main_xy = lidars[rig.main_lidar][:2, 3]
+    ground = _ground_disc(rng, main_xy, spec.ground_points)
+    # intensity per part (drawn only when asked, so the default scenes keep their random stream)
+    lum = [(20.0, 5.0), (190.0, 20.0), (35.0, 8.0), (45.0, 10.0)]  # ground, plates, tripods, static structure
+    clouds, intens = {}, {}
+    for li, (lname, T_v_l) in enumerate(lidars.items()):
+        T_l_v = geometry.invert_T(T_v_l)
+        if li == 0:
+            parts = [ground] + world_exact + [static_pts]
+        else:  # an independent sampling of the same surfaces for every other LiDAR
+            g2 = _ground_disc(rng, main_xy, spec.ground_points)
+            jitter = rng.normal(0, 0.01, size=static_pts.shape) * np.array([1, 1, 0])
+            own = world_exact
+            if spec.resample_per_lidar:
+                own = [np.concatenate([trihedral_points(p, bo, spec.reflector_edge, spec.plate_subdivisions, rng) for p, bo in zip(apex, bores)]),
+                       world_exact[1] + rng.normal(0, 0.004, world_exact[1].shape)]  # fmt: skip
+            parts = [g2] + own + [static_pts + jitter]
+        pl = geometry.transform_points(T_l_v, np.concatenate(parts))
+        it = np.concatenate([rng.normal(m, sd, len(q)) for (m, sd), q in zip(lum, parts)]) if spec.intensity else None
+        rng_ = np.linalg.norm(pl, axis=1)
+        ok = (rng_ < rig.lidar_max_range) & (rng_ > 0.3)
+        if li > 0 and spec.extra_lidar_fov_deg < 360:
+            ok &= np.abs(np.arctan2(pl[:, 1], pl[:, 0])) < np.radians(spec.extra_lidar_fov_deg) / 2
+        pl = pl[ok]
+        if spec.lidar_noise > 0:
+            rr = np.linalg.norm(pl, axis=1, keepdims=True)
+            pl = pl * (1.0 + rng.normal(0, spec.lidar_noise, size=(len(pl), 1)) / rr)
+        clouds[lname] = pl.astype(np.float32)
+        if it is not None:
+            intens[lname] = np.clip(it[ok], 0, 255).astype(np.float32)
+    return clouds, intens
+
+
+def _radar_detections(rng, spec: RadarSceneSpec, s: int, radars: dict, apex: np.ndarray, turns: np.ndarray, clutter_centres: list, feet: list, main_xy: np.ndarray):
+    """Every radar's detections over ``spec.n_frames`` frames (``{"radar", "xy", "rcs", "velocity"}``), with the
+    truth label and noise sigma of each. Labels: reflector k >= 0, -1 clutter box, -2 ghost, -3 low-RCS clutter,
+    -(100 + k) multipath ghost of reflector k."""
+    rcs_refl = 12.0 - 12.0 * (np.degrees(np.abs(turns)) / 45.0) ** 2  # trihedral RCS falls with the aspect angle
+    targets = [(p, float(rcs_refl[k]), k) for k, p in enumerate(apex)] + [(np.array(c), 5.0, -1) for c in clutter_centres]
+    extra = _static_radar_returns(rng, spec, radars, apex, rcs_refl, feet, main_xy)
+    names_out, xy_out, rcs_out, lab_out, sig_out = [], [], [], [], []
+    for _f in range(spec.n_frames):
+        for rname, T_v_r in radars.items():
+            xy, rcs, lab, sig = _radar_frame(rng, spec, s, rname, T_v_r, targets, extra)
+            names_out += [rname] * len(xy)
+            xy_out.append(xy)
+            rcs_out.append(rcs)
+            lab_out.append(lab)
+            sig_out.append(sig)
+    rcs = np.concatenate(rcs_out)
+    radar = {"radar": names_out, "xy": np.concatenate(xy_out).reshape(-1, 2), "rcs": rcs, "velocity": np.zeros(len(rcs))}
+    return radar, np.concatenate(lab_out), np.concatenate(sig_out)
+
+
+def _static_radar_returns(rng, spec: RadarSceneSpec, radars: dict, apex: np.ndarray, rcs_refl: np.ndarray, feet: list, main_xy: np.ndarray) -> list:
+    """Returns at the same place in every frame: low-RCS clutter (tripod feet, the region) and ground-bounce ghosts
+    of the reflectors: ``(xyz vehicle frame, rcs, label, radar or None for every radar)``."""
+    extra = []
+    if spec.low_rcs_clutter:
+        pool = list(feet) if feet else []
+        for k in range(spec.low_rcs_clutter):
+            if pool and k % 2 == 0:
+                q = pool[int(rng.integers(len(pool)))]
+            else:
+                q = np.array([main_xy[0] + rng.uniform(0.8, 4.5), main_xy[1] + rng.uniform(-2.5, 2.5), 0.2])
+            extra.append((np.array([q[0], q[1], 0.15]), float(rng.uniform(-10, -4)), -3, None))
+    if spec.multipath > 0:
+        for k, p in enumerate(apex):
+            for rname in radars:
+                if rng.random() < spec.multipath:
+                    extra.append((p * np.array([1.0, 1.0, -1.0]), float(rcs_refl[k] - 8.0), -(100 + k), rname))  # mirror image below ground
+    return extra
+
+
+def _radar_frame(rng, spec: RadarSceneSpec, s: int, rname: str, T_v_r: np.ndarray, targets: list, extra: list):
+    """One frame of radar ``rname``: detections (M,2) in its frame (slant range, noise, misses, ghosts, static
+    returns, quantisation), their RCS, truth labels and noise sigmas (NaN: not a target)."""
+    half_fov = np.radians(spec.rig.radar_fov_deg / 2)
+    T_r_v = geometry.invert_T(T_v_r)
+    P = geometry.transform_points(T_r_v, np.array([t[0] for t in targets]).reshape(-1, 3))
+    rh = np.linalg.norm(P[:, :2], axis=1)
+    az = np.arctan2(P[:, 1], P[:, 0])
+    vis = (np.abs(az) < half_fov) & (rh < spec.rig.radar_max_range) & (rh > 0.3)
+    vis &= rng.random(len(P)) >= spec.p_miss
+    m = P[:, :2] * (np.sqrt(rh**2 + P[:, 2] ** 2) / np.maximum(rh, 1e-9))[:, None]  # slant range
+    if spec.bad_reflector_offset and s == 0:
+        m[0] += np.array([0.6, 0.8]) * spec.bad_reflector_offset
+    base_rcs = np.array([t[1] for t in targets])
+    sig = np.full(len(targets), spec.radar_sigma)
+    if spec.rcs_noise:
+        sig = sig * 10 ** (np.clip(12.0 - base_rcs, 0, None) / 20)
+    m = m + _radar_noise(rng, spec, (len(m), 2)) * sig[:, None]
+    rcs = base_rcs + rng.normal(0, 1.0, len(targets))
+    ng = rng.poisson(spec.ghost_rate) if spec.ghost_rate > 0 else 0
+    g_r = rng.uniform(0.5, 8.0, ng)
+    g_a = rng.uniform(-half_fov, half_fov, ng)
+    gm = np.stack([g_r * np.cos(g_a), g_r * np.sin(g_a)], axis=1)
+    parts_m, parts_rcs = [m[vis], gm], [rcs[vis], rng.uniform(-10, 0, ng)]
+    labs = [np.array([t[2] for t in targets])[vis], np.full(ng, -2)]
+    sigs = [sig[vis], np.full(ng, np.nan)]
+    for q, c, lab, only in extra:  # static returns: same place every frame (+ noise)
+        if only is not None and only != rname:
+            continue
+        Q = geometry.transform_points(T_r_v, q[None])[0]
+        qh = np.hypot(Q[0], Q[1])
+        if abs(np.arctan2(Q[1], Q[0])) >= half_fov or qh < 0.3:
+            continue
+        mq = Q[:2] * np.sqrt(qh**2 + Q[2] ** 2) / qh + _radar_noise(rng, spec, (2,)) * spec.radar_sigma * 2
+        parts_m.append(mq[None]), parts_rcs.append(np.array([c + rng.normal(0, 1.0)])), labs.append(np.array([lab])), sigs.append(np.array([np.nan]))
+    allm, allrcs = np.concatenate(parts_m), np.concatenate(parts_rcs)
+    if spec.quantisation > 0:
+        allm = np.round(allm / spec.quantisation) * spec.quantisation
+    return allm, allrcs, np.concatenate(labs), np.concatenate(sigs)
+
+
+def _rig_yaml(rng, spec: RadarSceneSpec, lidars: dict, radars: dict, head_size: float) -> dict:
+    """``rig.yaml``: sensors with their (perturbed) initial guesses in the main LiDAR's frame, reflector geometry,
+    extraction settings."""
+    rig = spec.rig
+    T_main_v = geometry.invert_T(lidars[rig.main_lidar])
     err = spec.init_error
     rig_yaml = {
         "main_lidar": rig.main_lidar,
-        "lidars": {n: ({} if n == rig.main_lidar else {"initial_T_main": _xyzrpy(_perturb(geometry.invert_T(T_v_main) @ T, err, rng))}) for n, T in lidars.items()},
-        "radars": {n: {"mount_height_m": heights[n], **({"initial_T_main": _xyzrpy(_perturb(geometry.invert_T(T_v_main) @ T, err, rng))} if err else {})} for n, T in radars.items()},
+        "lidars": {n: ({} if n == rig.main_lidar else {"initial_T_main": _xyzrpy(_perturb(T_main_v @ T, err, rng))}) for n, T in lidars.items()},
+        "radars": {n: {"mount_height_m": float(rig.radars[n][2]), **({"initial_T_main": _xyzrpy(_perturb(T_main_v @ T, err, rng))} if err else {})} for n, T in radars.items()},
         "reference_radar": "radar_middle" if "radar_middle" in radars else next(iter(radars)),
-        "reflector": {"offset_m": float(off), "head_size_m": float(head_size), "edge_m": edge},
+        "reflector": {"offset_m": float(reflector_offset(spec.reflector_edge)), "head_size_m": float(head_size), "edge_m": spec.reflector_edge},
         "extraction": {"range_gate_m": 4.0},
         "filter_region": {"forward_m": [0.0, 5.0], "lateral_m": [-5.0, 5.0]},
-        "T_vehicle_main": _xyzrpy(T_v_main),
+        "T_vehicle_main": _xyzrpy(lidars[rig.main_lidar]),
     }
     if not err:
         for n in rig_yaml["lidars"]:
             if n != rig.main_lidar:
-                rig_yaml["lidars"][n] = {"initial_T_main": _xyzrpy(geometry.invert_T(T_v_main) @ lidars[n])}
-    T_main_v = geometry.invert_T(T_v_main)
-    truth = {
+                rig_yaml["lidars"][n] = {"initial_T_main": _xyzrpy(T_main_v @ lidars[n])}
+    return rig_yaml
+
+
+def _truth(spec: RadarSceneSpec, lidars: dict, radars: dict, truth_scenes: list) -> dict:
+    """``truth.json``: every sensor's pose in the vehicle and main-LiDAR frames, the reflectors per scene."""
+    T_main_v = geometry.invert_T(lidars[spec.rig.main_lidar])
+    return {
         "seed": spec.seed,
         "spec": _jsonable(asdict(spec)),
-        "main_lidar": rig.main_lidar,
+        "main_lidar": spec.rig.main_lidar,
         "T_vehicle_sensor": {n: T.tolist() for n, T in {**lidars, **radars}.items()},
         "T_main_sensor": {n: (T_main_v @ T).tolist() for n, T in {**lidars, **radars}.items()},
-        "radar_mount_height_m": heights,
-        "reflector_offset_m": float(off),
+        "radar_mount_height_m": {name: float(v[2]) for name, v in spec.rig.radars.items()},
+        "reflector_offset_m": float(reflector_offset(spec.reflector_edge)),
         "scenes": truth_scenes,
         "notes": "T_a_b maps points in b into a; radars are level at their mounting height; the radar reports the apex (slant range)",
     }
-    return RadarSession(rig_yaml, scenes, truth)
 
 
 def _radar_noise(rng, spec, shape):

@@ -20,7 +20,7 @@ from typing import Callable
 from radarcal.runtime import referee as rp
 from radarcal.synth.referee_sim import RefereeSim
 
-__all__ = ["open_pty", "PtyPort", "SerialPort", "serve", "ServeResult"]
+__all__ = ["open_pty", "PtyPort", "SerialPort", "serve", "serve_until_signal", "replay_truth", "ServeResult"]
 
 
 def open_pty() -> tuple[int, int, str]:
@@ -196,3 +196,40 @@ def play_match(sim: RefereeSim, command: list[str], log_path=None, timeout_s: fl
         th.join(30.0)
         port.close()
     return out["result"], proc
+
+
+def serve_until_signal(sim: RefereeSim, port, log_path=None, **kwargs) -> ServeResult:
+    """:func:`serve`, stopping cleanly on SIGINT / SIGTERM (the previous handlers restored, ``port`` closed)."""
+    import signal
+
+    stop = {"now": False}
+
+    def on_signal(signum, frame):  # noqa: ARG001
+        stop["now"] = True
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        return serve(sim, port, log_path, stop=lambda: stop["now"], **kwargs)
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        port.close()
+
+
+def replay_truth(replay):
+    """The replay folder at ``replay`` and the :class:`~radarcal.synth.referee_sim.Truth` of its ``truth.jsonl``
+    (``InputError`` when it has none or it is not one)."""
+    from radarcal.errors import InputError
+    from radarcal.io.replay import open_replay_folder
+    from radarcal.synth.referee_sim import Truth
+
+    rep = open_replay_folder(replay)
+    if rep.truth is None:
+        raise InputError(replay, "no truth.jsonl: the simulator scores marks against the replay's truth")
+    try:
+        truth = Truth.from_lines(rep.truth_by_frame().values())
+    except (ValueError, KeyError, TypeError, IndexError) as e:
+        raise InputError(rep.truth, f"not a truth file (JSON lines with t and robots[label, p_field]): {e}") from None
+    if not len(truth.t):
+        raise InputError(rep.truth, "empty: no frames")
+    return rep, truth
