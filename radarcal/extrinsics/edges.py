@@ -45,6 +45,35 @@ class ImageEdges:
     edge_map: np.ndarray = field(repr=False)  # (H,W) uint8, 255 on kept edges
     dist: np.ndarray = field(repr=False)  # (H,W) float32 distance (px) to the nearest kept edge pixel
     tree: cKDTree = field(repr=False, default=None)
+    _oriented: np.ndarray | None = field(repr=False, default=None)  # cache of oriented_distance
+
+    def oriented_distance(self, n_bins: int = 12) -> np.ndarray:
+        """(n_bins, H, W) float32: per direction bin b (edge direction angle in [b, b+1) * 180/n_bins deg, mod 180)
+        the distance (px) to the nearest edge pixel whose direction is within about one bin of it - the
+        orientation-aware chamfer map (an edge sample far from any *parallel* image edge scores far, even when it
+        sits on a crossing edge). Computed once per image."""
+        if self._oriented is not None and len(self._oriented) == n_bins:
+            return self._oriented
+        h, w = self.dist.shape
+        out = np.empty((n_bins, h, w), np.float32)
+        if len(self.uv) == 0:
+            out[:] = float(np.hypot(h, w))
+            self._oriented = out
+            return out
+        ang = np.mod(np.arctan2(self.dirs[:, 1], self.dirs[:, 0]), np.pi)
+        fb = ang / (np.pi / n_bins)  # fractional bin
+        ij = np.round(self.uv).astype(int)
+        ok = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+        ij, fb = ij[ok], fb[ok]
+        for b in range(n_bins):  # loop over bins (12), not pixels
+            centre = b + 0.5
+            diff = np.abs(np.mod(fb - centre + n_bins / 2, n_bins) - n_bins / 2)  # bins between the pixel's angle and the bin centre
+            sel = diff <= 1.0
+            m = np.full((h, w), 255, np.uint8)
+            m[ij[sel, 1], ij[sel, 0]] = 0
+            out[b] = cv2.distanceTransform(m, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+        self._oriented = out
+        return out
 
 
 # ------------------------------------------------------------------------------------------------------------------
@@ -397,6 +426,9 @@ def image_edges(image: np.ndarray, min_length: int = 40, canny: tuple[float, flo
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     if method == "lsd":
         return _lsd_edges(gray, min_length)
+    if method == "lsd+canny":
+        a, b = _lsd_edges(gray, min_length), image_edges(gray, min_length, canny, blur, "canny")
+        return _union_edges(a, b)
     g = cv2.GaussianBlur(gray, (0, 0), blur) if blur > 0 else gray
     if canny is None:
         gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
@@ -436,6 +468,14 @@ def image_edges(image: np.ndarray, min_length: int = 40, canny: tuple[float, flo
     off = np.clip(off, -0.5, 0.5)
     uv += np.stack([off * nx, off * ny], 1)
     dist = cv2.distanceTransform((~kept).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return ImageEdges(uv, dirs, edge_map, dist, cKDTree(uv) if len(uv) else None)
+
+
+def _union_edges(a: ImageEdges, b: ImageEdges) -> ImageEdges:
+    """One edge set from two detectors: every edge sample of both, the edge maps OR-ed, one distance transform."""
+    uv, dirs = np.concatenate([a.uv, b.uv]), np.concatenate([a.dirs, b.dirs])
+    edge_map = np.maximum(a.edge_map, b.edge_map)
+    dist = cv2.distanceTransform((edge_map == 0).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     return ImageEdges(uv, dirs, edge_map, dist, cKDTree(uv) if len(uv) else None)
 
 
