@@ -42,6 +42,9 @@ class RunConfig:
     cloud_latency_s: float = 0.0  # sweep end -> arrival
     window_sweeps: int = 1  # clouds integrated before clustering (1 measured best: docs/runtime.md)
     learn_background: bool = True
+    # auto: run the box path beside and output its track where no cluster explains a label (off: it gained 0-3.8 points
+    # of right labels on `synth match` but raised the far-robot p95 on the `synth field` family, docs/runtime.md)
+    box_shadow: bool = False
     ground_min_aspect: float = 0.55  # box height / width below which a LiDAR-first box-only fix takes no ground ray
     drift_check_s: float = 0.0  # re-register the LiDAR to the field every this many seconds (0: off; runtime/drift.py)
     # marking (radarcal.runtime.roster / marking, docs/runtime.md "Roster, guessing, bandwidth, double vulnerability")

@@ -46,7 +46,7 @@ class LidarFirstConfig:
     compensate: bool = False  # move older window points along their track (measured worse: docs)
     seen_lidar_s: float = 0.25  # a track counts as seen by the LiDAR this long after its last cluster
     seen_box_s: float = 0.1
-    box_shadow: bool = True  # run the box path beside; labels no LiDAR track holds now come from it (docs)
+    box_shadow: bool = False  # run the box path beside; labels no LiDAR track holds now come from it (opt-in: docs)
     prefer_box_m: float = 0.3  # a LiDAR-seen track's box-depth fix farther than this from it is output instead
     exclusion_m: float = 0.6  # output tracks nearer than this are one robot (a robot is <= 0.6 m across): one is measured
 

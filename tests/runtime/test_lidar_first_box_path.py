@@ -35,7 +35,7 @@ def _half_clouds(replay, T_field_lidar):
 
 def _scores(replay, mode):
     b = load_bundle(replay.bundle)
-    pipe = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b, localise=mode, cloud_sweep_s=0.0))
+    pipe = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b, localise=mode, cloud_sweep_s=0.0, box_shadow=True))
     T_field_lidar = b.T("field", "lidar0")
     dets = DetectionsFile.read(replay.detections)
     s = run(pipe, merge_by_time(replay.camera_frames(), _half_clouds(replay, T_field_lidar)), lambda f: dets.lookup(f.t, f.name), status=False, keep_results=True)
