@@ -89,3 +89,28 @@ def entry_readout(b, e) -> str | None:
         return None
     T_cam_other = b.T(cam, other)
     return format_camera_on_field(T_cam_other) if other == "field" else format_camera_in_lidar(T_cam_other)
+
+
+def bundle_summary_lines(s: dict) -> list[str]:
+    """The human lines of ``radarcal bundle show`` for a :func:`bundle_summary` dict."""
+    out = []
+    out.append(f"bundle {s['path']}")
+    for n, c in s["cameras"].items():
+        K = c["K"]
+        rms = "-" if c["rms_px"] is None else f"{c['rms_px']:.3f} px"
+        out.append(f"  camera {n}: {c['model']} {c['image_size'][0]}x{c['image_size'][1]}  fx={K[0][0]:.2f} fy={K[1][1]:.2f} cx={K[0][2]:.2f} cy={K[1][2]:.2f}  dist={np.array2string(np.asarray(c['dist']), precision=5)}  rms={rms}")
+    for n, t in s["transforms"].items():
+        x, y, z = t["xyz_m"]
+        r, p, yw = t["rpy_deg"]
+        out.append(f"  {n}: xyz=({x:.4f}, {y:.4f}, {z:.4f}) m  rpy=({r:.3f}, {p:.3f}, {yw:.3f}) deg  [{t['method'] or '-'}]")
+        if t["readout"]:
+            out.append(f"      {t['readout']}")
+    for n, meta in s["sensors"].items():
+        if meta.get("type") != "camera":
+            out.append(f"  sensor {n}: {meta}")
+    if s["field"]:
+        out.append(f"  field: {s['field']}")
+    out.append(f"  runtime: {s['runtime']}")
+    for c in s["cross_check"]:
+        out.append(f"  cross-check {c['text']}")
+    return out

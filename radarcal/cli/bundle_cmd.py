@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import typer
 
 from radarcal import geometry
@@ -14,7 +13,7 @@ from radarcal.io.outputs import check_outputs
 from radarcal.errors import InputError
 from radarcal.io import export_camera, import_camera, read_transform
 from radarcal.io.camera_formats import EXPORT_FORMATS
-from radarcal.readout import bundle_summary, entry_readout
+from radarcal.readout import bundle_summary, bundle_summary_lines, entry_readout
 from radarcal.readout import format_camera_in_lidar as describe_T_cam_lidar
 
 app = typer.Typer(help="Inspect and edit the calibration bundle.", no_args_is_help=True)
@@ -25,28 +24,7 @@ def show(bundle: Path = typer.Argument(..., help="Bundle file."), as_json: JsonO
     """Print what the bundle holds."""
     b = load_bundle(bundle)
 
-    def human(s: dict) -> None:
-        typer.echo(f"bundle {s['path']}")
-        for n, c in s["cameras"].items():
-            K = c["K"]
-            rms = "-" if c["rms_px"] is None else f"{c['rms_px']:.3f} px"
-            typer.echo(f"  camera {n}: {c['model']} {c['image_size'][0]}x{c['image_size'][1]}  fx={K[0][0]:.2f} fy={K[1][1]:.2f} cx={K[0][2]:.2f} cy={K[1][2]:.2f}  dist={np.array2string(np.asarray(c['dist']), precision=5)}  rms={rms}")
-        for n, t in s["transforms"].items():
-            x, y, z = t["xyz_m"]
-            r, p, yw = t["rpy_deg"]
-            typer.echo(f"  {n}: xyz=({x:.4f}, {y:.4f}, {z:.4f}) m  rpy=({r:.3f}, {p:.3f}, {yw:.3f}) deg  [{t['method'] or '-'}]")
-            if t["readout"]:
-                typer.echo(f"      {t['readout']}")
-        for n, meta in s["sensors"].items():
-            if meta.get("type") != "camera":
-                typer.echo(f"  sensor {n}: {meta}")
-        if s["field"]:
-            typer.echo(f"  field: {s['field']}")
-        typer.echo(f"  runtime: {s['runtime']}")
-        for c in s["cross_check"]:
-            typer.echo(f"  cross-check {c['text']}")
-
-    emit(bundle_summary(b), as_json, human)
+    emit(bundle_summary(b), as_json, lambda s: typer.echo("\n".join(bundle_summary_lines(s))))
 
 
 @app.command()

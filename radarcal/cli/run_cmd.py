@@ -16,6 +16,7 @@ from radarcal.cli.outputs import check_outputs
 from radarcal.cli.run_checks import check_serial_port, check_season, run_warnings
 from radarcal.errors import InputError
 from radarcal.runtime.match_run import health_text, live_lidars  # noqa: F401 - public names of this command
+from radarcal.runtime.summary_text import run_summary_lines
 
 __all__ = ["run", "hero_offset", "compute_hero_offset"]
 
@@ -97,35 +98,7 @@ def run(
     for w in plan.warnings:
         err_console.print(f"warning: {w}", style="yellow")
     summary = execute(plan, lambda b, cam, lid: resolve_field_pose(b, cam, lid, field_pose), lambda text: err_console.print(text, highlight=False, markup=False))
-    emit(summary, as_json, _human)
-
-
-def _human(s: dict) -> None:
-    cams = ", ".join(f"{c}{' (missing ' + str(s['camera_missing_frames'][c]) + ' frames)' if s['camera_missing_frames'].get(c) else ''}" for c in s["cameras"]) if s.get("cameras") else s["camera"]
-    typer.echo(f"{s['frames']} frames in {s['wall_s']:.1f} s ({s['fps']:.1f} FPS), {s['clouds']} clouds; camera {cams}, lidar {s['lidar'] or '-'}")
-    typer.echo("  latency ms (median / p95): " + ", ".join(f"{k} {v['median']:.2f}/{v['p95']:.2f}" for k, v in s["latency_ms"].items()))
-    rf = s["robot_frames"]
-    typer.echo(f"  robot positions: {rf.get('depth', 0)} from LiDAR depth, {rf.get('ground', 0)} from the ground ray, {rf.get('predicted', 0)} predicted")
-    acc = s.get("accuracy")
-    if acc and acc["median_m"] is not None:
-        typer.echo(f"  vs truth: {acc['located']}/{acc['visible']} visible robots located; error median {acc['median_m']:.3f} m, p95 {acc['p95_m']:.3f} m, max {acc['max_m']:.3f} m")
-        typer.echo(f"  right label within 0.6 m {acc['right_within_0.6m_pct']:.1f} %, false robots {acc['false_per_frame']:.3f} per frame, wrong label "
-                   f"{acc['wrong_label_pct'] or 0:.2f} %, any track within 0.3 m of a LiDAR-seen robot {acc['lidar_within_0.3m_pct'] or 0:.1f} %, longest ghost {acc['longest_ghost_s']:.2f} s")
-    elif acc:
-        typer.echo(f"  vs truth: any track within 0.3 m of a LiDAR-seen robot {acc['lidar_within_0.3m_pct'] or 0:.1f} %, false robots {acc['false_per_frame']:.3f} per frame, longest ghost {acc['longest_ghost_s']:.2f} s")
-    if s.get("bad_frames") or s.get("skipped_inputs"):
-        typer.echo(f"  skipped: {s['bad_frames']} unreadable frames, {s['skipped_inputs']} unreadable clouds/messages (warnings on stderr)")
-    for key, what in (("out", "tracks"), ("minimap", "minimap")):
-        if s.get(key):
-            typer.echo(f"  {what} -> {s[key]}")
-    if s.get("serial"):
-        q = s["serial"]
-        typer.echo(f"  referee link {q['port']}: {q.get('sent', 0)} frames sent, {q['disconnects']} disconnects{', last error ' + q['last_error'] if q['last_error'] else ''}")
-    if s.get("drift") and s["drift"]["max"]:
-        d = s["drift"]
-        typer.echo(f"  LiDAR drift: {d['checks']} checks every {d['check_every_s']:g} s, largest {d['max']['cm']:.1f} cm / {d['max']['deg']:.3f} deg (t={d['max']['t']:.1f} s), {'MOVED' if d['moved'] else 'within'} {d['threshold_cm']:.0f} cm / {d['threshold_deg']:g} deg")
-    for w in s["warnings"]:
-        typer.echo(f"  warning: {w}")
+    emit(summary, as_json, lambda s: typer.echo("\n".join(run_summary_lines(s))))
 
 
 def _drift_s(v: float) -> float:
