@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radarcal import geometry
+from radarcal.extrinsics.radar.matching import mutual_nn
 
 __all__ = ["LidarRegistration", "ground_prealign", "overlap_metrics", "register_lidar"]
 
@@ -234,13 +235,7 @@ def _reflector_pairs(T, src_reflectors, tgt_reflectors, gate) -> list:
         b = np.asarray(b, float).reshape(-1, 3)
         if len(a) == 0 or len(b) == 0:
             continue
-        pa = geometry.transform_points(T, a)
-        d = np.linalg.norm(pa[:, None] - b[None], axis=2)
-        ja, ib = d.argmin(axis=1), d.argmin(axis=0)
-        for i in range(len(a)):
-            j = ja[i]
-            if ib[j] == i and d[i, j] < gate:
-                out.append((si, i, int(j), a[i], b[j]))
+        out += [(si, int(i), int(j), a[i], b[j]) for i, j in mutual_nn(geometry.transform_points(T, a), b, gate)]
     return out
 
 

@@ -14,9 +14,11 @@ __all__ = ["mutual_nn", "robust_match_2d", "robust_match_sets"]
 
 
 def mutual_nn(a: np.ndarray, b: np.ndarray, gate: float) -> np.ndarray:
-    """(K,2) index pairs (i in a, j in b) that are each other's nearest neighbour and closer than ``gate``."""
-    a = np.asarray(a, float).reshape(-1, 2)
-    b = np.asarray(b, float).reshape(-1, 2)
+    """(K,2) index pairs (i in a, j in b) that are each other's nearest neighbour and closer than ``gate``; points
+    (N,D) of any dimension (a flat array is read as 2D points)."""
+    a = np.asarray(a, float)
+    a = a.reshape(-1, a.shape[-1] if a.ndim > 1 else 2)
+    b = np.asarray(b, float).reshape(-1, a.shape[1])
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), int)
     d = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
