@@ -6,10 +6,10 @@ import os
 
 from radarcal.errors import InputError, read_text
 
-__all__ = ["read_anchor_config"]
+__all__ = ["read_anchor_file"]
 
 
-def read_anchor_config(path: str | os.PathLike) -> dict:
+def read_anchor_file(path: str | os.PathLike) -> dict:
     """The anchor config YAML: a mapping with ``anchors:`` (``InputError`` otherwise)."""
     import yaml
 

@@ -380,9 +380,9 @@ def open_detector(o: RunOptions, log: Callable[[str], None]):
     from radarcal.runtime.detector import OnnxDetector, read_class_names
     from radarcal.runtime.stages import DetectAhead, NumberClassifier, Recogniser
 
-    from radarcal.io.detector_files import read_anchor_config
+    from radarcal.io.detector_files import read_anchor_file
 
-    anchor_cfg = read_anchor_config(o.anchors) if o.anchors is not None else None
+    anchor_cfg = read_anchor_file(o.anchors) if o.anchors is not None else None
 
     def names_of(p):
         return read_class_names(p) if p else None
