@@ -1,16 +1,15 @@
 """Robot detection: YOLO-family ONNX models through onnxruntime (layouts in :mod:`radarcal.runtime.yolo_layouts`),
-or precomputed boxes from a JSON-lines file.
+or precomputed boxes from a JSON-lines file (read by :mod:`radarcal.io.detections_file`).
 
 Input convention of every YOLO export: one N x 3 x H x W float image input (RGB, 0..1) after a letterbox (aspect
 kept, grey 114 padding centred). Class names come from ``--names`` (YOLO ``data.yaml``, a text file one per line,
 a JSON/YAML list or ``{id: name}`` mapping) or the model metadata ``names`` (YOLOv5 and ultralytics write
-``{0: 'red_1', ...}``). Optional second and third stages (armour on robot crops, number on armour crops) are in
+``{0: 'red_1', ...}``; both read in :mod:`radarcal.io.detector_files` / :mod:`radarcal.io.onnx_files`). Optional second and third stages (armour on robot crops, number on armour crops) are in
 :mod:`radarcal.runtime.stages`.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import sys
 import threading
@@ -21,9 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from radarcal.errors import InputError
-from radarcal.runtime.yolo_layouts import Layout, UnknownLayout, decode_batch, decode_v5_rows, detect_layout, nms, parse_meta_value, read_anchor_config
+from radarcal.io.detector_files import class_names_from
+from radarcal.io.onnx_files import check_onnx_header, parse_meta_value
+from radarcal.runtime.yolo_layouts import Layout, UnknownLayout, decode_batch, decode_v5_rows, detect_layout, nms, read_anchor_config
 
-__all__ = ["Detection", "Prepared", "letterbox", "tile_grid", "plan_rois", "decode_yolov5", "nms", "OnnxDetector", "OnnxModel", "OpenVinoSession", "DetectionsFile", "read_class_names", "resolve_providers"]
+__all__ = ["Detection", "Prepared", "letterbox", "tile_grid", "plan_rois", "decode_yolov5", "nms", "OnnxDetector", "OnnxModel", "OpenVinoSession", "DetectionsFile", "resolve_providers"]
 
 
 @dataclass
@@ -95,52 +96,6 @@ def decode_yolov5(pred: np.ndarray, conf_thres: float = 0.25, iou_thres: float =
     if pred.ndim != 2 or pred.shape[1] < 6:
         raise ValueError(f"expected a (N, 5+C) YOLOv5 output, got {pred.shape}")
     return decode_v5_rows(pred, conf_thres, iou_thres, max_det)
-
-
-def read_class_names(path: str | os.PathLike) -> list[str]:
-    """Class names from YOLO ``data.yaml`` (``names:`` list or ``{id: name}``, checked against ``nc:``), a JSON/YAML
-    list or mapping, or a text file (one name per line; ``id name`` lines are accepted)."""
-    from radarcal.errors import read_text
-
-    path = Path(path)
-    text = read_text(path, "class names file")
-    if path.suffix.lower() in (".json", ".yaml", ".yml"):
-        import yaml
-
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError:
-            raise InputError(path, "class names: not valid YAML/JSON") from None
-        nc = data.get("nc") if isinstance(data, dict) else None
-        if isinstance(data, dict) and "names" in data:
-            data = data["names"]
-        names = _names_from(data)
-        if not names:
-            raise InputError(path, "class names: expected a list, an {id: name} mapping or a data.yaml with names:")
-        if nc is not None and int(nc) != len(names):
-            raise InputError(path, f"nc: {nc} but {len(names)} names")
-        return names
-    names = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    if not names:
-        raise InputError(path, "class names file is empty")
-    split = [n.split(None, 1) for n in names]
-    if all(len(p) == 2 and p[0].isdigit() for p in split) and [int(p[0]) for p in split] == list(range(len(split))):
-        names = [p[1].strip() for p in split]  # "0 red_1" lines
-    return names
-
-
-def _names_from(data) -> list[str] | None:
-    if isinstance(data, (list, tuple)):
-        return [str(v) for v in data]
-    if isinstance(data, dict):
-        try:
-            keys = sorted(data, key=int)
-        except (TypeError, ValueError):
-            return None
-        if [int(k) for k in keys] != list(range(len(keys))):
-            return None
-        return [str(data[k]) for k in keys]
-    return None
 
 
 # --- onnxruntime sessions ----------------------------------------------------------------------------------------------
@@ -279,10 +234,7 @@ class OnnxModel:
             else:
                 opts.append({})
         try:
-            with open(self.path, "rb") as f:
-                head = f.read(64)
-            if not head or head.lstrip()[:1] in (b"{", b"<", b"#") or head[:4] in (b"\x89PNG", b"PK\x03\x04"):
-                raise ValueError("not an ONNX protobuf")
+            check_onnx_header(self.path)
             self.session = ort.InferenceSession(str(self.path), so, providers=use, provider_options=opts)
         except Exception as e:  # noqa: BLE001 - onnxruntime raises its own exception types
             msg = str(e).strip().splitlines()[0][:120] if str(e).strip() else e.__class__.__name__
@@ -410,7 +362,7 @@ class OnnxDetector:
         self.session = self.model.session
         self.input_name = self.model.input_name
         self.input_size = self.model.input_size
-        meta_names = _names_from(self.model.meta.get("names"))
+        meta_names = class_names_from(self.model.meta.get("names"))
         nc_hint = len(class_names) if class_names else (len(meta_names) if meta_names else None)
         try:
             self.layout: Layout = detect_layout(self.model.inputs, self.model.outputs, self.model.meta, nc_hint, layout)
@@ -649,30 +601,14 @@ class DetectionsFile:
 
     @classmethod
     def read(cls, path: str | os.PathLike, tol: float = 0.02) -> "DetectionsFile":
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(path, "detections file not found")
-        from radarcal.errors import read_text
+        """The detections of a file (:func:`radarcal.io.detections_file.read_detections_file`), sorted by time."""
+        from radarcal.io.detections_file import read_detections_file
 
-        times, boxes, by_frame = [], [], {}
-        for i, line in enumerate(read_text(path, "detections file").splitlines(), 1):
-            if not line.strip():
-                continue
-            try:
-                d = json.loads(line)
-                t = float(d["t"])
-                dets = [Detection(np.asarray(b["xyxy"], float).reshape(4), str(b.get("label", "")), float(b.get("score", 1.0)), dead=bool(b.get("dead", False)),
-                                  armour_label=b.get("armour"), number_label=b.get("number")) for b in d.get("boxes", [])]  # fmt: skip
-                if not (np.isfinite(t) and all(np.all(np.isfinite(x.xyxy)) and np.isfinite(x.score) for x in dets)):
-                    raise ValueError("non-finite time, box or score")
-            except (ValueError, KeyError, TypeError, AttributeError) as e:
-                raise InputError(path, f"line {i}: not a detection record ({e.__class__.__name__}: {e})") from None
-            if "frame" in d:
-                by_frame[str(d["frame"])] = len(times)
-            times.append(t)
-            boxes.append(dets)
-        if not times:
-            raise InputError(path, "no detection records (expected one JSON line per frame: {\"t\", \"frame\", \"boxes\"})")
+        lines = read_detections_file(path)
+        boxes = [[Detection(b["xyxy"], b["label"], b["score"], dead=b["dead"], armour_label=b["armour"], number_label=b["number"]) for b in ln.boxes]
+                 for ln in lines]  # fmt: skip
+        by_frame = {ln.frame: i for i, ln in enumerate(lines) if ln.frame is not None}
+        times = [ln.t for ln in lines]
         order = np.argsort(times, kind="stable")
         remap = {int(o): k for k, o in enumerate(order)}
         return cls(np.asarray(times, float)[order], [boxes[o] for o in order], {k: remap[v] for k, v in by_frame.items()}, tol)

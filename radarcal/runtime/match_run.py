@@ -377,10 +377,10 @@ def _multi_sources(plan: RunPlan, log: Callable):
 def open_detector(o: RunOptions, log: Callable[[str], None]):
     """The robot detector (+ optional armour and number stages) as ``detect(frame)`` with ``last_timings_ms`` and
     ``frames(src)`` (detection one frame ahead in a thread); ``.recogniser``: the batched stages."""
-    from radarcal.runtime.detector import OnnxDetector, read_class_names
+    from radarcal.runtime.detector import OnnxDetector
     from radarcal.runtime.stages import DetectAhead, NumberClassifier, Recogniser
 
-    from radarcal.io.detector_files import read_anchor_file
+    from radarcal.io.detector_files import read_anchor_file, read_class_names
 
     anchor_cfg = read_anchor_file(o.anchors) if o.anchors is not None else None
 

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from radarcal.errors import InputError
+from radarcal.io.onnx_files import load_onnx, save_onnx
 
 __all__ = ["quantise_model", "model_tensors", "output_agreement", "detection_agreement", "feeds_a_conv"]
 
@@ -159,7 +160,7 @@ def quantise_model(src, dst, images, held_out=None, activations: str = "uint8", 
     agreement: :func:`output_agreement` and, detectors, :func:`detection_agreement` at ``conf``}. Nothing is
     written when the quantisation fails."""
     try:
-        import onnx
+        import onnx  # noqa: F401 - checked here: radarcal.io.onnx_files reads and writes the models with it
         from onnxruntime.quantization import CalibrationDataReader, CalibrationMethod, QuantFormat, QuantType, quantize_static
     except ImportError as e:
         raise InputError("radarcal quantise", f"needs the onnx package ({e.name} missing: pip install onnx, or radarcal[speed])") from None
@@ -174,7 +175,7 @@ def quantise_model(src, dst, images, held_out=None, activations: str = "uint8", 
     x_cal, kind = model_tensors(src, calib)
     x_chk, _ = model_tensors(src, check, kind)
 
-    model = onnx.load(str(src))
+    model = load_onnx(src)
     for i, n in enumerate(model.graph.node):
         if not n.name:
             n.name = f"{n.op_type}_{i}"
@@ -192,7 +193,7 @@ def quantise_model(src, dst, images, held_out=None, activations: str = "uint8", 
 
     with tempfile.TemporaryDirectory() as tmp:
         named = Path(tmp) / "named.onnx"
-        onnx.save(model, str(named))
+        save_onnx(model, named)
         out_tmp = Path(tmp) / "int8.onnx"
         act = QuantType.QUInt8 if activations == "uint8" else QuantType.QInt8
         try:
@@ -202,14 +203,14 @@ def quantise_model(src, dst, images, held_out=None, activations: str = "uint8", 
         except Exception as e:  # noqa: BLE001 - onnxruntime.quantization raises many types
             msg = str(e).strip().splitlines()[0][:160] if str(e).strip() else e.__class__.__name__
             raise InputError(src, f"cannot quantise ({msg})") from None
-        qmodel = onnx.load(str(out_tmp))
+        qmodel = load_onnx(out_tmp)
         del qmodel.metadata_props[:]
         for p in model.metadata_props:  # names, imgsz, stride, author: the runtime reads the layout from them
             qmodel.metadata_props.add().CopyFrom(p)
         entry = qmodel.metadata_props.add()
         entry.key, entry.value = "radarcal_quantised", f"int8 QDQ per-channel, activations {activations}, {len(calib)} calibration frames"
         fs = _session(named)
-        onnx.save(qmodel, str(out_tmp))
+        save_onnx(qmodel, out_tmp)
         qs = _session(out_tmp)
         agreement = output_agreement(_run_all(fs, x_chk), _run_all(qs, x_chk), kind)
         if kind == "detector":
@@ -218,7 +219,7 @@ def quantise_model(src, dst, images, held_out=None, activations: str = "uint8", 
         n_q = _quantised_convs(qmodel)
         dst.parent.mkdir(parents=True, exist_ok=True)
         tmp_dst = dst.with_name(dst.name + ".part")
-        onnx.save(qmodel, str(tmp_dst))
+        save_onnx(qmodel, tmp_dst)
         os.replace(tmp_dst, dst)
     return {"kind": kind, "convs": n_conv, "quantised": n_q, "frames": len(calib), "held_out": len(check), "held_out_is_calibration": not rest and held_out is None,
             "ms_fp32": ms_fp32, "ms_int8": ms_int8, "agreement": agreement, "activations": activations, "path": str(dst)}  # fmt: skip

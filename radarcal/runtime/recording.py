@@ -177,7 +177,8 @@ def _recording_sensors(b, rec, replay: Path, bundle: Path, camera: str | None, l
 def _detect_fn(detector, names, conf, threads, detections):
     """``detect(frame) -> boxes``: the ONNX model ``detector`` or the ``detections`` file looked up by time / name."""
     from radarcal.errors import InputError
-    from radarcal.runtime.detector import DetectionsFile, OnnxDetector, read_class_names
+    from radarcal.io.detector_files import read_class_names
+    from radarcal.runtime.detector import DetectionsFile, OnnxDetector
 
     if detector is not None:
         det = OnnxDetector(detector, read_class_names(names) if names else None, conf_thres=conf, threads=threads)

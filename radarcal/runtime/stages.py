@@ -18,7 +18,8 @@ import time
 import numpy as np
 
 from radarcal.errors import InputError
-from radarcal.runtime.detector import Detection, OnnxDetector, OnnxModel, _names_from, to_tensor
+from radarcal.io.detector_files import class_names_from
+from radarcal.runtime.detector import Detection, OnnxDetector, OnnxModel, to_tensor
 
 __all__ = ["NumberClassifier", "Recogniser", "FrameDetector", "DetectAhead", "parse_armour_label", "parse_number_label", "combine_label"]
 
@@ -95,7 +96,7 @@ class NumberClassifier:
         if len(out) != 2 or len(self.model.outputs) != 1:
             raise InputError(self.path, f"number classifier: expected one N x classes output, got {self.model.outputs[0][0]} {'x'.join(map(str, out))}")
         nc = out[1] if isinstance(out[1], int) else None
-        names = list(class_names) if class_names else (_names_from(self.model.meta.get("names")) or [])
+        names = list(class_names) if class_names else (class_names_from(self.model.meta.get("names")) or [])
         if names and nc is not None and len(names) != nc:
             raise InputError(names_source if class_names else self.path, f"{len(names)} class names but {self.path.name} has {nc} classes (output {'x'.join(map(str, out))})")
         self.class_names = names or [str(i + 1) for i in range(nc or 0)]

@@ -24,6 +24,8 @@ import os
 
 import numpy as np
 
+from radarcal.io.onnx_files import save_onnx
+
 __all__ = ["make_fixed_boxes_model", "make_yolov5n_like", "count_macs", "layout_outputs", "make_fixed_outputs_model", "make_colour_armour_model",
            "make_grey_level_classifier", "make_yolov8n_like", "make_number_classifier", "ultralytics_meta", "make_square_finder"]
 
@@ -59,7 +61,7 @@ def make_fixed_boxes_model(path: str | os.PathLike, rows: np.ndarray, input_size
     model.ir_version = 8
     _names_meta(model, names)
     onnx.checker.check_model(model)
-    onnx.save(model, str(path))
+    save_onnx(model, path)
 
 
 def _layers(input_size: int, nc: int):
@@ -167,7 +169,7 @@ def make_yolov5n_like(path: str | os.PathLike, nc: int = 12, input_size: int = 6
     model.ir_version = 8
     _names_meta(model, names or [f"class_{i}" for i in range(nc)])
     onnx.checker.check_model(model)
-    onnx.save(model, str(path))
+    save_onnx(model, path)
 
 
 # --- known boxes in every export layout --------------------------------------------------------------------------------
@@ -258,7 +260,7 @@ def _save(model, path, meta: dict | None):
         e = model.metadata_props.add()
         e.key, e.value = str(k), str(v)
     onnx.checker.check_model(model)
-    onnx.save(model, str(path))
+    save_onnx(model, path)
 
 
 def make_fixed_outputs_model(path: str | os.PathLike, outputs: dict[str, np.ndarray], input_shape=(1, 3, 640, 640), meta: dict | None = None,

@@ -18,13 +18,11 @@ All decoders are pure numpy: raw output arrays of one batch in, per image ``(box
 
 from __future__ import annotations
 
-import ast
-import json
 from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Layout", "LAYOUT_NAMES", "detect_layout", "decode_batch", "nms", "class_aware_nms", "parse_meta_value", "DEFAULT_ANCHORS",
+__all__ = ["Layout", "LAYOUT_NAMES", "detect_layout", "decode_batch", "nms", "class_aware_nms", "DEFAULT_ANCHORS",
            "read_anchor_config", "UnknownLayout"]  # fmt: skip
 
 # YOLOv5 P3/P4/P5 default anchors (w, h in input pixels) for strides 8, 16, 32
@@ -50,16 +48,6 @@ class Layout:
     anchors: list | None = None  # raw: per level [(w, h)] * 3, levels sorted by stride
     strides: list | None = None
     sigmoid: bool = True  # raw: heads are logits
-
-
-def parse_meta_value(text: str):
-    """A metadata string as Python/JSON literal (ultralytics writes ``str(dict)``), or the string itself."""
-    for parse in (ast.literal_eval, json.loads):
-        try:
-            return parse(text)
-        except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
-            continue
-    return text
 
 
 def _fmt(shape) -> str:

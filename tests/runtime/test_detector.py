@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from radarcal.errors import InputError
-from radarcal.runtime.detector import DetectionsFile, OnnxDetector, decode_yolov5, letterbox, nms, read_class_names
+from radarcal.io.detector_files import read_class_names
+from radarcal.runtime.detector import DetectionsFile, OnnxDetector, decode_yolov5, letterbox, nms
 from radarcal.runtime.synthetic_onnx import count_macs, make_fixed_boxes_model, make_yolov5n_like
 
 NAMES = ["red_1", "red_3", "blue_1", "blue_7"]

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from radarcal.errors import InputError
-from radarcal.runtime.detector import OnnxDetector, letterbox, read_class_names
+from radarcal.io.detector_files import read_class_names
+from radarcal.runtime.detector import OnnxDetector, letterbox
 from radarcal.runtime.synthetic_onnx import layout_outputs, make_fixed_outputs_model, make_yolov8n_like, ultralytics_meta
 
 NAMES = ["red_1", "red_3", "blue_1", "blue_7", "blue_4"]
