@@ -4,6 +4,7 @@ from ``times.csv``), ``detections.jsonl``, ``truth.jsonl``, ``meta.json`` (``fps
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from dataclasses import dataclass
@@ -13,7 +14,7 @@ from radarcal.errors import InputError
 from radarcal.io.cloud_sources import FolderCloudSource, timed_files
 from radarcal.io.clouds import CLOUD_SUFFIXES
 
-__all__ = ["ReplayFolder", "open_replay_folder", "IMAGE_SUFFIXES"]
+__all__ = ["ReplayFolder", "TruthLines", "open_replay_folder", "IMAGE_SUFFIXES"]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
@@ -37,12 +38,30 @@ class ReplayFolder:
         out = {}
         if self.truth is None:
             return out
-        with open(self.truth, encoding="utf-8") as f:
-            for line in f:
-                if line.strip():
-                    d = json.loads(line)
-                    out[str(d.get("frame", d.get("t")))] = d
+        with contextlib.closing(TruthLines(self.truth)) as lines:
+            for d in lines:
+                out[str(d.get("frame", d.get("t")))] = d
         return out
+
+
+class TruthLines:
+    """``truth.jsonl`` read lazily, one record (dict) per non-empty line in file order: an iterator that can be left
+    and resumed (flat memory on long replays); :meth:`close` when done. The file is opened at construction."""
+
+    def __init__(self, path: str | os.PathLike):
+        self._f = open(path, encoding="utf-8")
+
+    def __iter__(self) -> TruthLines:
+        return self
+
+    def __next__(self) -> dict:
+        for line in self._f:
+            if line.strip():
+                return json.loads(line)
+        raise StopIteration
+
+    def close(self) -> None:
+        self._f.close()
 
 
 def _timeline(det: Path) -> list[tuple[float, str]] | None:

@@ -17,11 +17,12 @@ Per frame, over the output robots and the true robots (``visible`` = some part s
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
+
+from radarcal.io.replay import TruthLines
 
 __all__ = ["Scorer", "evaluate_tracks", "OnlineEvaluator"]
 
@@ -125,17 +126,14 @@ class OnlineEvaluator:
     long replays: only floats are kept)."""
 
     def __init__(self, truth_path: Path, tol_m: float = 0.6):
-        self._f = open(truth_path, encoding="utf-8")
+        self._truth_lines = TruthLines(truth_path)
         self._pending: dict[str, dict] = {}
         self.scorer = Scorer(tol_m)
 
     def _truth(self, frame: str) -> dict | None:
         if frame in self._pending:
             return self._pending.pop(frame)
-        for line in self._f:
-            if not line.strip():
-                continue
-            d = json.loads(line)
+        for d in self._truth_lines:
             if str(d.get("frame")) == frame:
                 return d
             self._pending[str(d.get("frame"))] = d
@@ -149,7 +147,7 @@ class OnlineEvaluator:
             self.scorer.add(res.t, [_robot_dict(r) for r in res.robots], tr)
 
     def summary(self) -> dict:
-        self._f.close()
+        self._truth_lines.close()
         return self.scorer.summary()
 
 
