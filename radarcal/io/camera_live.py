@@ -164,16 +164,15 @@ class VideoFileFrames:
     waiting (in steps of at most 5 ms) until each frame is due; ends with the file. ``release()`` closes it."""
 
     def __init__(self, path: str):
-        import cv2
-
         from pathlib import Path
+
+        from radarcal.io.video import VideoFile
 
         if not Path(path).is_file():
             raise InputError(path, "video file not found")
-        self._cap = cv2.VideoCapture(path)
-        if not self._cap.isOpened():
-            raise InputError(path, "cannot open video")
-        self.fps = self._cap.get(cv2.CAP_PROP_FPS) or 30.0
+        self._video = VideoFile(path, "cannot open video")
+        self._frames = self._video.frames()
+        self.fps = self._video.fps
 
     def __iter__(self) -> Iterator[tuple[float, str, np.ndarray]]:
         next_frame = time.monotonic()
@@ -183,12 +182,13 @@ class VideoFileFrames:
             if now < next_frame:
                 time.sleep(min(0.005, next_frame - now))
                 continue
-            ok, img = self._cap.read()
-            if not ok:
+            t_img = next(self._frames, None)
+            if t_img is None:
                 return
+            img = t_img[1]
             yield clock.now(), f"{k:06d}", img
             k += 1
             next_frame += 1.0 / self.fps
 
     def release(self) -> None:
-        self._cap.release()
+        self._video.close()

@@ -1,4 +1,4 @@
-"""Image reading with clear errors."""
+"""Image files and encoded image bytes: read and decode with clear errors, write."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 
 from radarcal.errors import InputError
 
-__all__ = ["read_image"]
+__all__ = ["read_image", "decode_image", "write_image"]
 
 
 def read_image(path: str | os.PathLike, grayscale: bool = False) -> np.ndarray:
@@ -21,7 +21,19 @@ def read_image(path: str | os.PathLike, grayscale: bool = False) -> np.ndarray:
     data = np.fromfile(path, dtype=np.uint8)
     if data.size == 0:
         raise InputError(path, "empty file")
-    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_COLOR)
+    img = decode_image(data, grayscale)
     if img is None or img.size == 0:
         raise InputError(path, "not a readable image (corrupt or unsupported format)")
     return img
+
+
+def decode_image(data: bytes | np.ndarray, grayscale: bool = False) -> np.ndarray | None:
+    """Encoded image bytes (JPEG, PNG, ...) as uint8 BGR (gray with ``grayscale=True``); None when they do not decode."""
+    buf = data if isinstance(data, np.ndarray) else np.frombuffer(data, np.uint8)
+    return cv2.imdecode(buf, cv2.IMREAD_GRAYSCALE if grayscale else cv2.IMREAD_COLOR)
+
+
+def write_image(path: str | os.PathLike, img: np.ndarray, what: str = "image") -> None:
+    """Write ``img`` in the format of the file's suffix (.png, .jpg, ...); InputError ``cannot write <what>``."""
+    if not cv2.imwrite(str(path), img):
+        raise InputError(path, f"cannot write {what}")

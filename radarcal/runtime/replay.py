@@ -49,10 +49,10 @@ def merged_recorded_clouds(clouds: Iterable[Cloud], T_common: dict[str, np.ndarr
 
 
 def recorded_frames(rec, camera: str) -> Iterator[CameraFrame]:
-    import cv2
+    from radarcal.io.images import decode_image
 
     for i, (t, name, jpg) in enumerate(rec.camera_frames(camera)):
-        yield CameraFrame(t, name, (lambda b=jpg: cv2.imdecode(np.frombuffer(b, np.uint8), cv2.IMREAD_COLOR)), i)
+        yield CameraFrame(t, name, (lambda b=jpg: decode_image(b)), i)
 
 
 class PtyPort:
@@ -167,29 +167,16 @@ def paced_video(path: str) -> Iterator[CameraFrame]:
     for station tests (no frame is skipped when the loop is slow: the video then runs late)."""
     import time
 
-    import cv2
-
-    from radarcal.errors import InputError
     from radarcal.io import clock
+    from radarcal.io.video import VideoFile
 
-    cap = cv2.VideoCapture(path)
-    if not cap.isOpened():
-        raise InputError(path, "cannot open video")
-    fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
+    video = VideoFile(path, "cannot open video")
     t0 = time.monotonic()
-    i = 0
-    try:
-        while True:
-            ok, img = cap.read()
-            if not ok:
-                return
-            delay = t0 + i / fps - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            yield CameraFrame(clock.now(), f"{i:06d}", (lambda img=img: img), i)
-            i += 1
-    finally:
-        cap.release()
+    for i, (_, img) in enumerate(video.frames()):
+        delay = t0 + i / video.fps - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        yield CameraFrame(clock.now(), f"{i:06d}", (lambda img=img: img), i)
 
 
 def start_recording(out, bundle, camera: str, video: str | None, clouds: list[str]):

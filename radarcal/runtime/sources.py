@@ -1,6 +1,6 @@
 """Inputs of ``radarcal run``: camera frames, live LiDAR clouds, the replay folder, and time pairing.
 
-Camera: a video file, an image folder (times from ``times.csv`` ``file,t`` if present, else numeric file names, else
+Camera: a video file (:mod:`radarcal.io.video`), an image folder (times from ``times.csv`` ``file,t`` if present, else numeric file names, else
 index / fps), or a live ``cv2.VideoCapture`` index / URL (host-clock receive times, reconnecting:
 :mod:`radarcal.io.camera_live`). Live Livox LiDARs are started and read by :mod:`radarcal.io.livox`. Recorded clouds (folders, ROS bags) come
 from the cloud-source layer in :mod:`radarcal.io.cloud_sources` / :mod:`radarcal.io.bags`; nothing here decodes a file.
@@ -57,29 +57,15 @@ def image_folder_frames(folder: str | os.PathLike, fps: float = 30.0) -> Iterato
 def video_frames(source: str, fps: float | None = None) -> Iterator[CameraFrame]:
     """A video file (times from the container) or a live index / URL (:class:`radarcal.io.camera_live.LiveCamera`:
     host-clock receive times, reopened when unplugged, stall frames instead of waiting)."""
-    import cv2
-
     if source.isdigit() or "://" in source:
         from radarcal.io.camera_live import LiveCamera
 
         yield from LiveCamera(source)
         return
-    cap = cv2.VideoCapture(source)
-    if not cap.isOpened():
-        raise InputError(source, "cannot open video source")
-    rate = fps or cap.get(cv2.CAP_PROP_FPS) or 30.0
-    i = 0
-    try:
-        while True:
-            ok, img = cap.read()
-            if not ok:
-                break
-            ms = cap.get(cv2.CAP_PROP_POS_MSEC)
-            t = ms / 1000.0 if ms and ms > 0 and i > 0 else i / rate
-            yield CameraFrame(t, f"{i:06d}", (lambda img=img: img), i)
-            i += 1
-    finally:
-        cap.release()
+    from radarcal.io.video import VideoFile
+
+    for i, (t, img) in enumerate(VideoFile(source, "cannot open video source").frames(fps)):
+        yield CameraFrame(t, f"{i:06d}", (lambda img=img: img), i)
 
 
 def open_camera(spec: str, fps: float = 30.0) -> Iterator[CameraFrame]:

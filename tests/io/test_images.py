@@ -8,6 +8,7 @@ import pytest
 
 from radarcal.errors import InputError
 from radarcal.io import read_image
+from radarcal.io.images import decode_image, write_image
 
 
 def test_read_png_and_gray(tmp_path):
@@ -35,3 +36,14 @@ def test_bad_images(tmp_path, data, msg):
 def test_missing_image(tmp_path):
     with pytest.raises(InputError, match="image not found"):
         read_image(tmp_path / "nope.png")
+
+
+def test_decode_encoded_bytes_and_write(tmp_path):
+    img = (np.arange(48 * 64 * 3) % 251).astype(np.uint8).reshape(48, 64, 3)
+    ok, png = cv2.imencode(".png", img)
+    assert ok and np.array_equal(decode_image(png.tobytes()), img)
+    assert decode_image(b"hello") is None  # what a recorded frame that does not decode gives (the loop reports it)
+    write_image(tmp_path / "w.png", img, "minimap image")
+    assert np.array_equal(read_image(tmp_path / "w.png"), img)
+    with pytest.raises(InputError, match="cannot write minimap image"):
+        write_image(tmp_path / "no-such-folder" / "w.png", img, "minimap image")
