@@ -10,7 +10,6 @@ and re-exports them. Nothing here imports a solver: the bundle is read once at s
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Callable
 
 from radarcal.bundle import Bundle
 from radarcal.errors import InputError
+from radarcal.io.run_results import RunResultsWriter
 from radarcal.runtime.evaluation import OnlineEvaluator, Scorer, evaluate_tracks
 from radarcal.runtime.minimap import Minimap, StageTimer
 from radarcal.runtime.pipeline import LOCALISE_MODES, FrameResult, Pipeline, RobotOut, RunConfig
@@ -82,7 +82,7 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
     (replays of a recording: byte-identical output); ``marking`` (:class:`radarcal.runtime.marking.Marking`) decides
     what goes on the link (roster, guesses, bandwidth, double vulnerability). Returns a summary."""
     timer = StageTimer()
-    out_f = open(out_path, "w", encoding="utf-8") if out_path else None
+    out_f = RunResultsWriter(out_path) if out_path else None
     mm = _MinimapOutput(pipeline.field_model, minimap_path) if minimap_path else None
     last_status = 0.0
     results = [] if keep_results else None
@@ -119,7 +119,7 @@ def run(pipeline: Pipeline, pairs, detect: Callable, out_path: Path | None = Non
             tic = time.perf_counter()
             d = res.to_dict()
             if out_f:
-                out_f.write(json.dumps(d if write_latency else {k: v for k, v in d.items() if k != "latency_ms"}, separators=(",", ":")) + "\n")
+                out_f.write(d if write_latency else {k: v for k, v in d.items() if k != "latency_ms"})
             if mm is not None:
                 mm.add(res)
             if link is not None:
@@ -173,18 +173,15 @@ class _MinimapOutput:
     run's trails (kept bounded: the older half thinned past 3000 points per robot)."""
 
     def __init__(self, field_model, path: Path):
-        self.path, self.map, self.writer = Path(path), Minimap(field_model), None
+        from radarcal.io.video import VideoFileWriter
+
+        self.path, self.map = Path(path), Minimap(field_model)
         self.video = self.path.suffix.lower() in _VIDEO_SUFFIXES
+        self.writer = VideoFileWriter(self.path, 30.0) if self.video else None  # opened by the first frame
 
     def add(self, res: FrameResult) -> None:
-        import cv2
-
         if self.video:
-            img = self.map.draw(res)
-            if self.writer is None:
-                fourcc = cv2.VideoWriter_fourcc(*("mp4v" if self.path.suffix.lower() == ".mp4" else "MJPG"))
-                self.writer = cv2.VideoWriter(str(self.path), fourcc, 30.0, (img.shape[1], img.shape[0]))
-            self.writer.write(img)
+            self.writer.write(self.map.draw(res))
             return
         for r in res.robots:
             hist = self.map.history.setdefault(r.key, [])
@@ -194,16 +191,14 @@ class _MinimapOutput:
 
     def close(self) -> None:
         if self.writer is not None:
-            self.writer.release()
+            self.writer.close()
 
     def write_png(self, last: FrameResult) -> None:
-        import cv2
-
         if self.video:
             return
-        img = self.map.draw(FrameResult(last.t, last.frame, last.robots, None, None, {}), full_trails=True)
-        if not cv2.imwrite(str(self.path), img):
-            raise InputError(self.path, "cannot write minimap image")
+        from radarcal.io.images import write_image
+
+        write_image(self.path, self.map.draw(FrameResult(last.t, last.frame, last.robots, None, None, {}), full_trails=True), "minimap image")
 
 
 def _status_line(n: int, res: FrameResult, timer: StageTimer, pipeline, link, marking, status_extra) -> str:

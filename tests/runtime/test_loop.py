@@ -12,7 +12,7 @@ import pytest
 from radarcal.bundle import load_bundle
 from radarcal.runtime import referee as rp
 from radarcal.runtime.detector import DetectionsFile
-from radarcal.runtime.loop import Pipeline, RunConfig, evaluate_tracks, run
+from radarcal.runtime.loop import OnlineEvaluator, Pipeline, RunConfig, evaluate_tracks, run
 from radarcal.runtime.sources import merge_by_time, open_replay
 
 SAMPLE = Path(__file__).resolve().parents[2] / "datasets" / "sample_replay"
@@ -156,3 +156,24 @@ def test_malformed_boxes_are_dropped(replay):
     for k in range(3):  # one box never makes a robot; three consistent ones do
         res = auto.process(k / 30, "x", bad)
         assert [r.label for r in res.robots] == ([] if k < 2 else ["blue_7"]), k
+
+
+def test_online_scores_match_the_offline_ones_and_the_results_file(replay, tmp_path):
+    """OnlineEvaluator (truth.jsonl read lazily by io.replay.TruthLines) agrees with the scores of the written
+    results against the whole truth; the --out file holds exactly the loop's results (latency left out)."""
+    b = load_bundle(replay.bundle)
+    pipe = Pipeline(b, "cam0", "lidar0", RunConfig.from_bundle(b, cloud_sweep_s=0.0, localise="box"))
+    dets = DetectionsFile.read(replay.detections)
+    online = OnlineEvaluator(replay.truth)
+    out = tmp_path / "results.jsonl"
+    s = run(pipe, merge_by_time(replay.camera_frames(), replay.cloud_frames()), lambda f: dets.lookup(f.t, f.name), out_path=out, status=False,
+            keep_results=True, on_frame=online, max_frames=120, write_latency=False)  # fmt: skip
+    got, want = online.summary(), evaluate_tracks(s["results"], replay.truth_by_frame())
+    assert s["frames"] == 120 and got["visible"] > 100
+    for k in ("visible", "missing", "right_within_0.6m_pct", "false_per_frame"):
+        assert got[k] == want[k], k
+    for k in ("median_m", "p95_m"):  # the written results round positions to the millimetre
+        assert got[k] == pytest.approx(want[k], abs=1e-3), k
+    lines = [json.loads(ln) for ln in out.read_text(encoding="utf-8").splitlines()]
+    assert lines == [{k: v for k, v in r.items() if k != "latency_ms"} for r in s["results"]]
+    assert all("latency_ms" in r for r in s["results"])
