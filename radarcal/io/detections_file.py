@@ -47,5 +47,5 @@ def read_detections_file(path: str | os.PathLike) -> list[DetectionLine]:
             raise InputError(path, f"line {i}: not a detection record ({e.__class__.__name__}: {e})") from None
         lines.append(DetectionLine(t, str(d["frame"]) if "frame" in d else None, boxes))
     if not lines:
-        raise InputError(path, "no detection records (expected one JSON line per frame: {\"t\", \"frame\", \"boxes\"})")
+        raise InputError(path, 'no detection records (expected one JSON line per frame: {"t", "frame", "boxes"})')
     return lines

@@ -19,10 +19,9 @@ import numpy as np
 
 from radarcal.errors import InputError
 from radarcal.io.onnx_files import load_onnx, save_onnx
+from radarcal.io.replay import IMAGE_SUFFIXES
 
 __all__ = ["quantise_model", "model_tensors", "output_agreement", "detection_agreement", "feeds_a_conv"]
-
-IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
 
 def _images_of(src) -> list:
