@@ -210,7 +210,7 @@ class TickDetector:
                 except InputError as e:  # one camera's unreadable image: that camera has no boxes this tick
                     sys.stderr.write(f"warning: {e} ({c} frame skipped)\n")
                     views[c] = (c, f.t, f.name, [])
-            out = self.recogniser(imgs) if imgs else []
+            out = self.recogniser(imgs, cameras=cams) if imgs else []
             for c, dets in zip(cams, out):
                 f = tick.frames[c]
                 views[c] = (c, f.t, f.name, dets)

@@ -44,8 +44,8 @@ def test_tick_detector_one_batched_call_per_tick():
     class Rec:
         last_timings_ms = {"robot": 1.0}
 
-        def __call__(self, images):
-            calls.append(len(images))
+        def __call__(self, images, cameras=None):
+            calls.append((len(images), cameras))
             return [[Detection(np.array([0.0, 0.0, 10.0, 10.0]), f"blue_{int(im[0, 0])}", 0.9)] for im in images]
 
     f0 = CameraFrame(1.0, "a", lambda: np.full((4, 4), 1.0), 0)
@@ -53,7 +53,7 @@ def test_tick_detector_one_batched_call_per_tick():
     ticks = list(group_by_time({"cam0": [f0], "cam1": [f1]}))
     assert len(ticks) == 1
     vd = TickDetector(recogniser=Rec())(ticks[0])
-    assert calls == [2]
+    assert calls == [(2, ["cam0", "cam1"])]  # one call, each image with its camera (the far-robot windows)
     assert [(c, t, n, d[0].label) for c, t, n, d in vd.views] == [("cam1", 0.99, "b", "blue_3"), ("cam0", 1.0, "a", "blue_1")]
 
 
