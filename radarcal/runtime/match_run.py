@@ -386,13 +386,14 @@ def _multi_sources(plan: RunPlan, log: Callable):
         det_files = {}
         cloud_src = _live_clouds(plan, None)
     live = rep is None and any(s.isdigit() or "://" in s for s in plan.videos.values())
-    if need_pixels:  # each camera decoded in its own thread
-        streams = {c: prefetch_frames(s, latest_only=live) for c, s in streams.items()}
+    rec = open_detector(o, log).recogniser if need_pixels else None
+    if need_pixels:  # each camera decoded and letterboxed for the detector in its own thread
+        streams = {c: prefetch_frames(s, latest_only=live, prepare=rec.robot.prepare_ahead) for c, s in streams.items()}
     ticks = (group_live if live else group_by_time)(streams)
     if plan.lidar_only:
         tick_detect = TickDetector(files={c: _NoBoxes() for c in plan.cameras})
     elif o.detector is not None:
-        tick_detect = TickDetector(recogniser=open_detector(o, log).recogniser, ahead=o.detect_ahead)
+        tick_detect = TickDetector(recogniser=rec, ahead=o.detect_ahead)
     else:
         missing = [c for c in plan.cameras if c not in det_files]
         if missing:
