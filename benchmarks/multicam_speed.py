@@ -317,7 +317,7 @@ def big_replay(root: Path, frames: int) -> Path:
     return rep
 
 
-def run_cli_big(frames: int, providers: str, windows: int, threads: int = 0) -> dict:
+def run_cli_big(frames: int, providers: str, windows: int, threads: int = 1, workers: int = 2) -> dict:
     """One 12 MP camera through ``radarcal run`` itself: :func:`big_replay` (kept in ``$RADARCAL_BENCH_CACHE`` when
     set, else in memory), then ``run --replay R --detector v5n.onnx --roi-windows K --speed 0`` (the run places
     the windows around its far tracks). Its JSON summary (``roi_windows``: what the windows did)."""
@@ -331,7 +331,7 @@ def run_cli_big(frames: int, providers: str, windows: int, threads: int = 0) -> 
     with tempfile.TemporaryDirectory(dir="/dev/shm" if os.path.isdir("/dev/shm") else None) as tmp:  # 36 MB per frame: in memory
         rep, model = big_replay(Path(cache) if cache else Path(tmp), frames), Path(tmp) / "v5n.onnx"
         make_yolov5n_like(model, nc=len(NAMES), names=NAMES)
-        cmd = ["run", "--replay", str(rep), "--detector", str(model), "--providers", providers, "--threads", str(threads), "--roi-windows", str(windows), "--speed", "0",
+        cmd = ["run", "--replay", str(rep), "--detector", str(model), "--providers", providers, "--threads", str(threads), "--detect-workers", str(workers), "--roi-windows", str(windows), "--speed", "0",
                "--json", "--quiet", "--out", str(Path(tmp) / "o.jsonl")]  # fmt: skip
         p = subprocess.run([sys.executable, "-m", "radarcal"] + cmd, capture_output=True, text=True, env=env)
         if p.returncode != 0:

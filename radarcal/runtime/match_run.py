@@ -393,7 +393,7 @@ def _multi_sources(plan: RunPlan, log: Callable):
     if plan.lidar_only:
         tick_detect = TickDetector(files={c: _NoBoxes() for c in plan.cameras})
     elif o.detector is not None:
-        tick_detect = TickDetector(recogniser=rec, ahead=o.detect_ahead)
+        tick_detect = TickDetector(recogniser=rec, ahead=o.detect_ahead, workers=o.detect_workers)
     else:
         missing = [c for c in plan.cameras if c not in det_files]
         if missing:
