@@ -42,6 +42,7 @@ def run(
     conf: float = typer.Option(0.25, "--conf", help="Detector confidence threshold."),
     threads: int = typer.Option(0, "--threads", help="onnxruntime intra-op threads per model (0 = its default)."),
     detect_workers: int = typer.Option(1, "--detect-workers", min=1, max=8, help="Frames detected at once (with --detect-ahead; on 2 cores 2 workers with --threads 1 ran fastest: docs/runtime.md Speed)."),
+    roi_windows: int = typer.Option(None, "--roi-windows", help="Native-resolution detector windows per frame around far tracks (0 = off; default auto: 2 on frames >= 3x the detector input, e.g. 12 MP, else 0)."),
     detections: Path = typer.Option(None, "--detections", help="Precomputed detections (JSON lines, one per frame)."),
     serial: str = typer.Option(None, "--serial", help="Referee serial port, e.g. /dev/ttyUSB0 (115200 8N1); replaying a recording also 'pty' (a new pseudo-terminal) or 'dry-run' (default)."),
     out: Path = typer.Option(None, "--out", help="Per-frame JSON lines (robots in field coordinates)."),

@@ -471,8 +471,9 @@ class OnnxDetector:
         pixels; a region larger than the input is shrunk to fit), all regions in one batched run (``parallel`` runs
         for a fixed-batch model). A box within ``edge_px`` of a region border that is not the frame's border is a
         robot cut by the window and dropped. Region boxes found twice (overlapping windows) go through class-aware
-        NMS; with ``full`` (this frame's full-frame detections) the two are merged: a full-frame box of the same
-        label overlapping a region box (IoU > ``iou_thres``) gives way to it. ``last_timings_ms``: preprocess /
+        NMS; with ``full`` (this frame's full-frame detections) the two are merged: a full-frame box overlapping a
+        region box (IoU > ``iou_thres``, whatever its label: the window saw that robot at native resolution, and
+        two labels on one robot would be two robots) gives way to it. ``last_timings_ms``: preprocess /
         infer / decode / merge and ``regions`` (count)."""
         t0 = time.perf_counter()
         H, W = image.shape[:2]
@@ -512,13 +513,7 @@ class OnnxDetector:
         out = found
         if full:
             rb = np.array([d.xyxy for d in found]).reshape(-1, 4)
-            rl = np.array([d.label for d in found], dtype=object)
-            kept = []
-            for d in full:
-                same = rl == d.label
-                if same.any() and (_iou(d.xyxy, rb[same]) > self.iou_thres).any():
-                    continue
-                kept.append(d)
+            kept = [d for d in full if not len(rb) or not (_iou(d.xyxy, rb) > self.iou_thres).any()]
             out = sorted(kept + found, key=lambda d: -d.score)
         self.last_timings_ms = {"preprocess": pre, "infer": infer, "decode": dec, "merge": (time.perf_counter() - t3) * 1e3, "regions": float(len(wins))}
         return out

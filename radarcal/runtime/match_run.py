@@ -44,6 +44,7 @@ class RunOptions:
     conf: float = 0.25
     threads: int = 0
     detect_workers: int = 1  # frames detected at once (DetectAhead workers; 2 with --threads 1 is fastest on 2 cores)
+    roi_windows: int | None = None  # native-resolution windows around far robots per frame (None: auto, far_windows.auto_windows)
     detections: Path | None = None
     serial: str | None = None
     out: Path | None = None
@@ -96,6 +97,8 @@ def validate_options(o: RunOptions) -> None:
     """Option combinations that are wrong whatever the inputs hold (before a recording is even opened)."""
     if o.replay is not None and o.video or (o.replay is None and not o.video and not o.clouds):
         raise InputError("radarcal run", "give exactly one of --replay DIR or --video SRC (or --clouds SRC alone: LiDAR only)")
+    if o.roi_windows is not None and not 0 <= o.roi_windows <= 8:
+        raise InputError("--roi-windows", f"expected 0..8 windows per frame, got {o.roi_windows}")
     if o.localise not in ("auto", "lidar", "box"):
         raise InputError("--localise", f"expected auto, lidar or box, got {o.localise!r}")
     lidar_only = o.no_camera or (o.replay is None and not o.video and bool(o.clouds))
@@ -184,6 +187,7 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
         detect, frames, cloud_src, tick_detect = _multi_sources(plan, log)
     else:
         detect, frames, cloud_src, camera_health, recorder = _single_sources(plan, log)
+    far = _far_windows(plan, pipe, tick_detect.recogniser if plan.multi else getattr(detect, "recogniser", None), log)
     link = _open_link(plan, recorder)
     marking = Marking(cfg, field_length_m=pipe.field_model.size[0] if pipe.field_model is not None else 28.0) if link is not None else None
     evaluator = OnlineEvaluator(rep.truth) if rep is not None and rep.truth is not None else None
@@ -191,6 +195,10 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
     on_frame, console = evaluator, None
     if o.ui is not None or o.speed:
         pairs, detect, on_frame, console = _pace_and_console(plan, pipe, pairs, detect, evaluator, link, cloud_src, marking)
+    if far is not None:  # the windows follow the tracks of the frame just output
+        from radarcal.runtime.console.live import chain_callbacks
+
+        on_frame = chain_callbacks(on_frame, far.observe)
     rec_manifest = None
     try:
         def sensors_health() -> dict:
@@ -223,6 +231,8 @@ def execute(plan: RunPlan, resolve_pose: Callable, log: Callable[[str], None]) -
             from radarcal.runtime.replay import finish_recording
 
             rec_manifest = finish_recording(recorder, cloud_src, o.serial)
+    if far is not None:
+        summary["roi_windows"] = far.summary()
     return _finish_summary(summary, plan, cloud_src, evaluator, tick_detect, link, console, rec_manifest)
 
 
@@ -267,6 +277,23 @@ def _single_sources(plan: RunPlan, log: Callable):
 
         frames = recorded(frames, recorder, plan.camera)
     return detect, frames, cloud_src, camera_health, recorder
+
+
+def _far_windows(plan: RunPlan, pipe, recogniser, log: Callable):
+    """``--roi-windows``: the recogniser's far-robot windows (:mod:`radarcal.runtime.far_windows`) when some camera
+    gets any (auto: frames at least 3x the detector input); None without an ONNX detector or windows."""
+    if recogniser is None or plan.lidar_only or not hasattr(recogniser, "robot"):
+        return None
+    from radarcal.runtime.far_windows import FarWindows
+
+    far = FarWindows.for_pipeline(pipe, recogniser.robot.input_size, plan.opts.roi_windows)
+    if not far.active():
+        return None
+    recogniser.far = far
+    h, w = far.input_hw
+    log(f"far-robot windows: up to {', '.join(f'{c} {far.count(v[0].image_size[::-1])}' for c, v in far.views.items())} native {w}x{h} windows per frame "
+        f"(tracks whose box would be < {far.far_px:.0f} px in the full-frame letterbox)")
+    return far
 
 
 def _open_link(plan: RunPlan, recorder):
@@ -359,13 +386,14 @@ def _multi_sources(plan: RunPlan, log: Callable):
         det_files = {}
         cloud_src = _live_clouds(plan, None)
     live = rep is None and any(s.isdigit() or "://" in s for s in plan.videos.values())
-    if need_pixels:  # each camera decoded in its own thread
-        streams = {c: prefetch_frames(s, latest_only=live) for c, s in streams.items()}
+    rec = open_detector(o, log).recogniser if need_pixels else None
+    if need_pixels:  # each camera decoded and letterboxed for the detector in its own thread
+        streams = {c: prefetch_frames(s, latest_only=live, prepare=rec.robot.prepare_ahead) for c, s in streams.items()}
     ticks = (group_live if live else group_by_time)(streams)
     if plan.lidar_only:
         tick_detect = TickDetector(files={c: _NoBoxes() for c in plan.cameras})
     elif o.detector is not None:
-        tick_detect = TickDetector(recogniser=open_detector(o, log).recogniser, ahead=o.detect_ahead)
+        tick_detect = TickDetector(recogniser=rec, ahead=o.detect_ahead, workers=o.detect_workers)
     else:
         missing = [c for c in plan.cameras if c not in det_files]
         if missing:

@@ -174,9 +174,10 @@ def missing_text(missing: list[str]) -> str:
 
 class TickDetector:
     """``detect(tick) -> ViewDetections`` for the loop, from detections files (``files``: camera -> DetectionsFile)
-    or a recogniser (one batched call per tick). ``frames(ticks)``: detection one tick ahead in a thread."""
+    or a recogniser (one batched call per tick). ``frames(ticks)``: detection one tick ahead in a thread (``workers``
+    ticks at once, each worker with its own view of the recogniser: ``radarcal run --detect-workers``)."""
 
-    def __init__(self, recogniser=None, files: dict | None = None, ahead: bool = False):
+    def __init__(self, recogniser=None, files: dict | None = None, ahead: bool = False, workers: int = 1):
         if (recogniser is None) == (files is None):
             raise ValueError("give exactly one of recogniser and files")
         self.recogniser, self.files = recogniser, files
@@ -191,11 +192,12 @@ class TickDetector:
 
             class _Ahead(DetectAhead):
                 def _run(self, tick):
-                    return outer._detect(tick)
+                    return outer._detect(tick, self._own())
 
-            self._ahead = _Ahead(recogniser)
+            self._ahead = _Ahead(recogniser, workers=workers)
 
-    def _detect(self, tick: CameraTick) -> tuple[ViewDetections, dict]:
+    def _detect(self, tick: CameraTick, recogniser=None) -> tuple[ViewDetections, dict]:
+        rec = self.recogniser if recogniser is None else recogniser
         views = {}
         if self.files is not None:
             for c, f in tick.frames.items():
@@ -210,11 +212,11 @@ class TickDetector:
                 except InputError as e:  # one camera's unreadable image: that camera has no boxes this tick
                     sys.stderr.write(f"warning: {e} ({c} frame skipped)\n")
                     views[c] = (c, f.t, f.name, [])
-            out = self.recogniser(imgs) if imgs else []
+            out = rec(imgs, cameras=cams) if imgs else []
             for c, dets in zip(cams, out):
                 f = tick.frames[c]
                 views[c] = (c, f.t, f.name, dets)
-            timings = dict(getattr(self.recogniser, "last_timings_ms", {}) or {})
+            timings = dict(getattr(rec, "last_timings_ms", {}) or {})
         return ViewDetections(sorted(views.values(), key=lambda v: v[1]), list(tick.missing)), timings
 
     def frames(self, ticks):

@@ -138,18 +138,24 @@ class Recogniser:
         self.robot, self.armour, self.number = robot, armour, number
         self.crop_margin = crop_margin
         self.number_conf = number_conf
+        self.far = None  # radarcal.runtime.far_windows.FarWindows: native-resolution windows around far robots
         self.last_timings_ms: dict[str, float] = {}
 
-    def __call__(self, images):
+    def __call__(self, images, cameras: list[str] | None = None):
         if isinstance(images, np.ndarray) and (images.ndim == 2 or (images.ndim == 3 and images.shape[2] in (1, 3, 4))):
             return self.detect_batch([images])[0]
-        return self.detect_batch(list(images))
+        return self.detect_batch(list(images), cameras)
 
-    def detect_batch(self, images: list[np.ndarray]) -> list[list[Detection]]:
+    def detect_batch(self, images: list[np.ndarray], cameras: list[str] | None = None) -> list[list[Detection]]:
+        """Per image its detections; ``cameras``: each image's camera (the far-robot windows; None: the primary)."""
         t0 = time.perf_counter()
         robots = self.robot.detect_batch(images)
         t1 = time.perf_counter()
         timings = {"robot": (t1 - t0) * 1e3}
+        if self.far is not None:  # robot boxes of the windows merged in before the armour / number stages read them
+            robots = self.far.detect(self.robot, images, robots, cameras)
+            t0, t1 = t1, time.perf_counter()
+            timings["regions"] = (t1 - t0) * 1e3
         if self.armour is not None:
             owners, crops, origins = [], [], []
             for i, (img, dets) in enumerate(zip(images, robots)):

@@ -11,6 +11,10 @@ def run_summary_lines(s: dict) -> list[str]:
     out.append("  latency ms (median / p95): " + ", ".join(f"{k} {v['median']:.2f}/{v['p95']:.2f}" for k, v in s["latency_ms"].items()))
     rf = s["robot_frames"]
     out.append(f"  robot positions: {rf.get('depth', 0)} from LiDAR depth, {rf.get('ground', 0)} from the ground ray, {rf.get('predicted', 0)} predicted")
+    rw = s.get("roi_windows")
+    if rw:
+        out.append(f"  far-robot windows ({rw['max_windows']} per frame, {rw['input'][1]}x{rw['input'][0]} native): {rw['windows_run']} windows on {rw['frames_with_windows']} camera frames, "
+                   f"{rw['boxes_added']} boxes more than the full frames")
     acc = s.get("accuracy")
     if acc and acc["median_m"] is not None:
         out.append(f"  vs truth: {acc['located']}/{acc['visible']} visible robots located; error median {acc['median_m']:.3f} m, p95 {acc['p95_m']:.3f} m, max {acc['max_m']:.3f} m")

@@ -44,8 +44,8 @@ def test_tick_detector_one_batched_call_per_tick():
     class Rec:
         last_timings_ms = {"robot": 1.0}
 
-        def __call__(self, images):
-            calls.append(len(images))
+        def __call__(self, images, cameras=None):
+            calls.append((len(images), cameras))
             return [[Detection(np.array([0.0, 0.0, 10.0, 10.0]), f"blue_{int(im[0, 0])}", 0.9)] for im in images]
 
     f0 = CameraFrame(1.0, "a", lambda: np.full((4, 4), 1.0), 0)
@@ -53,7 +53,7 @@ def test_tick_detector_one_batched_call_per_tick():
     ticks = list(group_by_time({"cam0": [f0], "cam1": [f1]}))
     assert len(ticks) == 1
     vd = TickDetector(recogniser=Rec())(ticks[0])
-    assert calls == [2]
+    assert calls == [(2, ["cam0", "cam1"])]  # one call, each image with its camera (the far-robot windows)
     assert [(c, t, n, d[0].label) for c, t, n, d in vd.views] == [("cam1", 0.99, "b", "blue_3"), ("cam0", 1.0, "a", "blue_1")]
 
 
@@ -185,3 +185,19 @@ def test_a_lost_track_does_not_jump_farther_than_a_robot_can_move():
     fresh = _coasting(tk, (5.0, 5.0), "red_1")  # a track measured now keeps its covariance gate
     fresh.t_seen = fresh.t = 2.5
     assert tk._gate(fresh, np.array([0.05]), np.array([2.5]))[0] == pytest.approx(0.8 + 3 * np.sqrt(0.05**2 + 0.05**2))
+
+
+def test_tick_detector_two_workers_keep_tick_order():
+    import time
+
+    class Rec:
+        last_timings_ms: dict = {}
+
+        def __call__(self, images, cameras=None):
+            time.sleep(0.02 * (int(images[0][0, 0]) % 2))  # odd ticks slower: they finish after the next one
+            return [[Detection(np.array([0.0, 0.0, 10.0, 10.0]), f"blue_{int(im[0, 0])}", 0.9)] for im in images]
+
+    frames = [CameraFrame(0.1 * k, f"{k}", (lambda k=k: np.full((4, 4), float(k))), k) for k in range(8)]
+    td = TickDetector(recogniser=Rec(), ahead=True, workers=2)
+    got = [td(tick).views[0][3][0].label for tick in td.frames(group_by_time({"cam0": frames}))]
+    assert got == [f"blue_{k}" for k in range(8)]
