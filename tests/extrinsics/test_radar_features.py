@@ -110,15 +110,20 @@ def test_feature_sessions_against_the_ideal_fit_never_stored_wrong(family, tmp_p
 
 
 def test_frame_averages_are_inverse_variance_means():
-    """A weak echo merged into a reflector's cluster (one frame of a ghost or clutter 25 cm off, 15 dB weaker) moves
-    the average by its share of the weight only, and the cluster's RCS is the power mean."""
+    """Frames of one cluster 3 dB apart (one RCS class) are averaged with inverse-variance weights 10^(RCS/10) and the
+    cluster's RCS is the power mean; a single frame 15 dB weaker than the others (a ghost or clutter 25 cm off) is a
+    class of its own, split out instead of averaged in."""
     xy = np.array([[3.0, 0.0], [3.0, 0.0], [3.0, 0.0], [3.25, 0.0]])
-    rcs = np.array([10.0, 10.0, 10.0, -5.0])
-    m, c, r = aggregate_frames(xy, rcs=rcs)
-    w = 10 ** (-1.5)
+    m, c, r = aggregate_frames(xy, rcs=np.array([10.0, 10.0, 10.0, 7.0]))
+    w = 10 ** (-0.3)
     assert len(m) == 1 and c.tolist() == [4]
     assert m[0, 0] == pytest.approx(3.0 + 0.25 * w / (3 + w), abs=1e-12)  # arithmetic mean: 3.0625
     assert r[0] == pytest.approx(10 + 10 * np.log10((3 + w) / 4), abs=1e-9)
+    m, c, r = aggregate_frames(xy, rcs=np.array([10.0, 10.0, 10.0, -5.0]))
+    order = np.argsort(c)
+    assert c[order].tolist() == [1, 3]
+    assert m[order, 0] == pytest.approx([3.25, 3.0], abs=1e-12)
+    assert r[order] == pytest.approx([-5.0, 10.0], abs=1e-9)
 
 
 def test_rcs_scaled_association_takes_split_frames_drops_ghosts():

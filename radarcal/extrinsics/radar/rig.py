@@ -131,7 +131,7 @@ def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant, scale=No
 
 
 MAX_GATE = 1.0  # m: the RCS-scaled gate never exceeds this (reflectors stand ~1 m apart)
-GHOST_DB = 4.0  # dB: a farther detection this much weaker than another of the same reflector is its multipath ghost
+GHOST_DB = 4.0  # dB: a detection this much weaker than another of the same reflector is not its echo (ghost, clutter)
 
 
 def _associate(pred: np.ndarray, m: np.ndarray, rc, counts: np.ndarray, gate: float, sigma_unit: float, rcs_ref: float) -> np.ndarray:
@@ -139,7 +139,8 @@ def _associate(pred: np.ndarray, m: np.ndarray, rc, counts: np.ndarray, gate: fl
     each detection to its nearest reflector when closer than 3.4 of its own sigma (99.7 %, 2 dof), ``sigma_unit`` /
     sqrt(RCS weight x frames) -- a weak echo's noise is larger, so a turned reflector's scattered frames all count,
     at their small weight -- at least ``gate``, at most :data:`MAX_GATE`. Of the detections taken by one reflector,
-    those farther and more than :data:`GHOST_DB` weaker than the strongest are its multipath ghosts and dropped.
+    those more than :data:`GHOST_DB` weaker than the strongest are not its echo (one reflector returns one power; a
+    multipath ghost or clutter beside it is weaker) and dropped.
     Returns (K,2) index pairs (reflector, detection); a reflector may take several detections (a cluster split)."""
     if len(pred) == 0 or len(m) == 0:
         return np.zeros((0, 2), int)
