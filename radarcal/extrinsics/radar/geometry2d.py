@@ -152,11 +152,14 @@ class Fit2D:
 
 
 def _jac_cov(J: np.ndarray, r: np.ndarray, sigma_meas: float | None) -> np.ndarray:
+    """Gauss-Newton covariance of the parameters. With the noise estimated from the residuals (``sigma_meas`` None)
+    the parameters are Student-t with ``dof`` degrees of freedom: their variance is that of the normal times
+    ``dof / (dof - 2)`` (taken as 3 below 3 dof), which a few matches make far from 1."""
     n, p = J.shape
     JTJ = J.T @ J
     if sigma_meas is None:
         dof = max(n - p, 1)
-        s2 = float(r @ r) / dof
+        s2 = float(r @ r) / dof * (dof / (dof - 2) if dof >= 3 else 3.0)
     else:
         s2 = sigma_meas**2
     try:
