@@ -141,3 +141,29 @@ def test_rcs_scaled_association_takes_split_frames_drops_ghosts():
     rcs = np.array([0.0, -8.0, -8.0, -8.0, 10.0])
     pairs = _associate(pred, m, rcs, np.ones(5), gate=0.35, sigma_unit=0.02, rcs_ref=10.0)
     assert {tuple(p) for p in pairs.tolist()} == {(0, 0), (1, 2), (1, 3)}
+
+
+def test_multipath_of_names_the_reflector_on_whose_echo_path_a_detection_lies():
+    """A reflector 3 m ahead, 1.1 m up, radar plane 0.5 m: its direct echo and its ground-mirror ghost (slant range
+    with dz = 1.6 m) lie on its echo path; a detection 0.5 m across the bearing or 1 m beyond the mirror does not."""
+    from radarcal.extrinsics.radar.geometry2d import multipath_of
+
+    q = np.array([[3.0, 0.0], [0.0, 3.0]])
+    z = np.array([1.1, 1.1])
+    direct, mirror = np.hypot(3.0, 0.6), np.hypot(3.0, 1.6)
+    m = np.array([[direct, 0.0], [mirror, 0.02], [mirror, 0.5], [mirror + 1.0, 0.0], [0.0, mirror]])
+    assert multipath_of(m, q, z, 0.5, 0.2).tolist() == [0, 0, -1, -1, 1]
+    assert multipath_of(np.zeros((0, 2)), q, z, 0.5, 0.2).shape == (0,)
+
+
+def test_association_drops_a_much_weaker_detection_beside_a_reflector_even_when_nearer():
+    """Tripod-foot clutter 30 cm nearer the radar than a strong reflector echo and 14 dB weaker is within its
+    RCS-scaled gate, but one reflector returns one power: only the strong echo is taken."""
+    from radarcal.extrinsics.radar.rig import _associate
+
+    pred = np.array([[3.0, 0.0]])
+    m = np.array([[3.01, 0.0], [2.7, 0.05]])
+    pairs = _associate(pred, m, np.array([8.0, -6.0]), np.array([1.0, 3.0]), gate=0.35, sigma_unit=0.05, rcs_ref=8.0)
+    assert pairs.tolist() == [[0, 0]]
+    pairs = _associate(pred, m[1:], np.array([-6.0]), np.array([3.0]), gate=0.35, sigma_unit=0.05, rcs_ref=8.0)
+    assert pairs.tolist() == [[0, 0]]  # alone, the weak echo is within its gate (sigma 0.17 m)
