@@ -110,15 +110,20 @@ def test_feature_sessions_against_the_ideal_fit_never_stored_wrong(family, tmp_p
 
 
 def test_frame_averages_are_inverse_variance_means():
-    """A weak echo merged into a reflector's cluster (one frame of a ghost or clutter 25 cm off, 15 dB weaker) moves
-    the average by its share of the weight only, and the cluster's RCS is the power mean."""
+    """Frames of one cluster 3 dB apart (one RCS class) are averaged with inverse-variance weights 10^(RCS/10) and the
+    cluster's RCS is the power mean; a single frame 15 dB weaker than the others (a ghost or clutter 25 cm off) is a
+    class of its own, split out instead of averaged in."""
     xy = np.array([[3.0, 0.0], [3.0, 0.0], [3.0, 0.0], [3.25, 0.0]])
-    rcs = np.array([10.0, 10.0, 10.0, -5.0])
-    m, c, r = aggregate_frames(xy, rcs=rcs)
-    w = 10 ** (-1.5)
+    m, c, r = aggregate_frames(xy, rcs=np.array([10.0, 10.0, 10.0, 7.0]))
+    w = 10 ** (-0.3)
     assert len(m) == 1 and c.tolist() == [4]
     assert m[0, 0] == pytest.approx(3.0 + 0.25 * w / (3 + w), abs=1e-12)  # arithmetic mean: 3.0625
     assert r[0] == pytest.approx(10 + 10 * np.log10((3 + w) / 4), abs=1e-9)
+    m, c, r = aggregate_frames(xy, rcs=np.array([10.0, 10.0, 10.0, -5.0]))
+    order = np.argsort(c)
+    assert c[order].tolist() == [1, 3]
+    assert m[order, 0] == pytest.approx([3.25, 3.0], abs=1e-12)
+    assert r[order] == pytest.approx([-5.0, 10.0], abs=1e-9)
 
 
 def test_rcs_scaled_association_takes_split_frames_drops_ghosts():
@@ -136,3 +141,29 @@ def test_rcs_scaled_association_takes_split_frames_drops_ghosts():
     rcs = np.array([0.0, -8.0, -8.0, -8.0, 10.0])
     pairs = _associate(pred, m, rcs, np.ones(5), gate=0.35, sigma_unit=0.02, rcs_ref=10.0)
     assert {tuple(p) for p in pairs.tolist()} == {(0, 0), (1, 2), (1, 3)}
+
+
+def test_multipath_of_names_the_reflector_on_whose_echo_path_a_detection_lies():
+    """A reflector 3 m ahead, 1.1 m up, radar plane 0.5 m: its direct echo and its ground-mirror ghost (slant range
+    with dz = 1.6 m) lie on its echo path; a detection 0.5 m across the bearing or 1 m beyond the mirror does not."""
+    from radarcal.extrinsics.radar.geometry2d import multipath_of
+
+    q = np.array([[3.0, 0.0], [0.0, 3.0]])
+    z = np.array([1.1, 1.1])
+    direct, mirror = np.hypot(3.0, 0.6), np.hypot(3.0, 1.6)
+    m = np.array([[direct, 0.0], [mirror, 0.02], [mirror, 0.5], [mirror + 1.0, 0.0], [0.0, mirror]])
+    assert multipath_of(m, q, z, 0.5, 0.2).tolist() == [0, 0, -1, -1, 1]
+    assert multipath_of(np.zeros((0, 2)), q, z, 0.5, 0.2).shape == (0,)
+
+
+def test_association_drops_a_much_weaker_detection_beside_a_reflector_even_when_nearer():
+    """Tripod-foot clutter 30 cm nearer the radar than a strong reflector echo and 14 dB weaker is within its
+    RCS-scaled gate, but one reflector returns one power: only the strong echo is taken."""
+    from radarcal.extrinsics.radar.rig import _associate
+
+    pred = np.array([[3.0, 0.0]])
+    m = np.array([[3.01, 0.0], [2.7, 0.05]])
+    pairs = _associate(pred, m, np.array([8.0, -6.0]), np.array([1.0, 3.0]), gate=0.35, sigma_unit=0.05, rcs_ref=8.0)
+    assert pairs.tolist() == [[0, 0]]
+    pairs = _associate(pred, m[1:], np.array([-6.0]), np.array([3.0]), gate=0.35, sigma_unit=0.05, rcs_ref=8.0)
+    assert pairs.tolist() == [[0, 0]]  # alone, the weak echo is within its gate (sigma 0.17 m)

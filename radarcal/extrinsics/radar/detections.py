@@ -17,8 +17,8 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
     """Average repeated detections of one radar over many frames: single-linkage clusters within ``gate``, cluster
     means; clusters seen in fewer than ``min_fraction`` of the most-seen cluster's frames are dropped (ghosts).
 
-    With ``rcs`` (dBsm per detection) a cluster whose RCS values form two classes more than ``rcs_split_db`` (and
-    3 within-class sigma) apart is split in two (a ground-bounce multipath ghost sits a few decimetres behind its reflector, ~8 dB weaker, and would
+    With ``rcs`` (dBsm per detection) a cluster of three or more whose RCS values form two classes (one may be a
+    single frame) more than ``rcs_split_db`` (and 3 within-class sigma) apart is split in two (a ground-bounce multipath ghost sits a few decimetres behind its reflector, ~8 dB weaker, and would
     otherwise be averaged into it); the means are then inverse-variance means (weights ``10^(RCS/10)``) and each
     cluster's RCS is the power mean (``n`` frames at it carry the cluster's total weight). Returns (means (K,2),
     counts (K,)) or, with ``rcs``, (means, counts, RCS (K,))."""
@@ -37,10 +37,10 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
         while queue:  # clusters (few): two RCS classes (least within-class variance) when clearly apart, recursively
             c = queue.pop()
             idx = np.nonzero(lab == c)[0]
-            if len(idx) < 4:
+            if len(idx) < 3:
                 continue
             v = np.sort(rc[idx])
-            k = np.arange(2, len(v) - 1)  # split after the k lowest (each class >= 2)
+            k = np.arange(1, len(v))  # split after the k lowest (a class may be one frame: a reflector's frame among clutter)
             if len(k) == 0:
                 continue
             cs, cs2 = np.cumsum(v), np.cumsum(v**2)

@@ -13,7 +13,7 @@ from scipy.optimize import least_squares
 
 from radarcal import geometry
 
-__all__ = ["Fit2D", "Pose2", "deslant", "fit_rigid_2d", "pose2_to_T", "procrustes_2d", "procrustes_floor", "rot2", "slant_predict", "wrap_angle"]
+__all__ = ["Fit2D", "Pose2", "deslant", "fit_rigid_2d", "multipath_of", "pose2_to_T", "procrustes_2d", "procrustes_floor", "rot2", "slant_predict", "wrap_angle"]
 
 
 def rot2(theta: float) -> np.ndarray:
@@ -93,6 +93,28 @@ def deslant(m: np.ndarray, dz: np.ndarray | float) -> np.ndarray:
     return m * scale[:, None]
 
 
+def multipath_of(m: np.ndarray, q: np.ndarray, z: np.ndarray, height: float, gate: float) -> np.ndarray:
+    """Which reflector's echo path each radar detection ``m`` (M,2, radar frame) lies on: along the bearing of a
+    reflector at horizontal position ``q`` (K,2, radar frame) and height ``z`` (K,, above the ground; radar plane at
+    ``height``), within ``gate`` across it, and between its direct slant range and that of its ground-mirror image
+    (a ground-bounce multipath ghost: the reflector seen below the ground, ``z -> -z``) widened by ``gate``.
+    Returns (M,) the reflector index, -1 for none (the nearest bearing when several)."""
+    m = np.asarray(m, float).reshape(-1, 2)
+    q = np.asarray(q, float).reshape(-1, 2)
+    if len(m) == 0 or len(q) == 0:
+        return np.full(len(m), -1, int)
+    z = np.asarray(z, float).reshape(-1)
+    r = np.linalg.norm(q, axis=1)
+    u = q / np.maximum(r, 1e-12)[:, None]  # (K,2) bearings
+    along = m @ u.T  # (M,K) range along each bearing
+    across = np.abs(m[:, :1] * u[None, :, 1] - m[:, 1:] * u[None, :, 0])
+    direct = np.hypot(r, z - height)
+    mirror = np.hypot(r, z + height)
+    on = (across < gate) & (along > direct - gate) & (along < mirror + gate)
+    k = np.argmin(np.where(on, across, np.inf), axis=1)
+    return np.where(on.any(axis=1), k, -1)
+
+
 @dataclass
 class Fit2D:
     """Result of :func:`fit_rigid_2d`: ``dst ~ slant(R(theta) src + t, src_z - height)``."""
@@ -130,11 +152,14 @@ class Fit2D:
 
 
 def _jac_cov(J: np.ndarray, r: np.ndarray, sigma_meas: float | None) -> np.ndarray:
+    """Gauss-Newton covariance of the parameters. With the noise estimated from the residuals (``sigma_meas`` None)
+    the parameters are Student-t with ``dof`` degrees of freedom: their variance is that of the normal times
+    ``dof / (dof - 2)`` (taken as 3 below 3 dof), which a few matches make far from 1."""
     n, p = J.shape
     JTJ = J.T @ J
     if sigma_meas is None:
         dof = max(n - p, 1)
-        s2 = float(r @ r) / dof
+        s2 = float(r @ r) / dof * (dof / (dof - 2) if dof >= 3 else 3.0)
     else:
         s2 = sigma_meas**2
     try:

@@ -44,6 +44,7 @@ from radarcal.extrinsics.radar.geometry2d import (
     Pose2,
     deslant,
     fit_rigid_2d,
+    multipath_of,
     pose2_to_T,
     rot2,
     slant_predict,
@@ -130,7 +131,7 @@ def _obs_for_radar(scenes, lidar_G, name, pose_G, mount_h, gate, slant, scale=No
 
 
 MAX_GATE = 1.0  # m: the RCS-scaled gate never exceeds this (reflectors stand ~1 m apart)
-GHOST_DB = 4.0  # dB: a farther detection this much weaker than another of the same reflector is its multipath ghost
+GHOST_DB = 4.0  # dB: a detection this much weaker than another of the same reflector is not its echo (ghost, clutter)
 
 
 def _associate(pred: np.ndarray, m: np.ndarray, rc, counts: np.ndarray, gate: float, sigma_unit: float, rcs_ref: float) -> np.ndarray:
@@ -138,7 +139,8 @@ def _associate(pred: np.ndarray, m: np.ndarray, rc, counts: np.ndarray, gate: fl
     each detection to its nearest reflector when closer than 3.4 of its own sigma (99.7 %, 2 dof), ``sigma_unit`` /
     sqrt(RCS weight x frames) -- a weak echo's noise is larger, so a turned reflector's scattered frames all count,
     at their small weight -- at least ``gate``, at most :data:`MAX_GATE`. Of the detections taken by one reflector,
-    those farther and more than :data:`GHOST_DB` weaker than the strongest are its multipath ghosts and dropped.
+    those more than :data:`GHOST_DB` weaker than the strongest are not its echo (one reflector returns one power; a
+    multipath ghost or clutter beside it is weaker) and dropped.
     Returns (K,2) index pairs (reflector, detection); a reflector may take several detections (a cluster split)."""
     if len(pred) == 0 or len(m) == 0:
         return np.zeros((0, 2), int)
@@ -149,11 +151,10 @@ def _associate(pred: np.ndarray, m: np.ndarray, rc, counts: np.ndarray, gate: fl
     sig = sigma_unit / np.sqrt(w * np.maximum(counts, 1))
     ok = dmin < np.clip(3.4 * sig, gate, MAX_GATE)
     if rc is not None:
-        rr = np.linalg.norm(m, axis=1)
         for i in np.unique(near[ok]):  # reflectors (few)
             mine = np.nonzero(ok & (near == i))[0]
             top = mine[np.argmax(rc[mine])]
-            ok[mine[(rc[mine] < rc[top] - GHOST_DB) & (rr[mine] > rr[top])]] = False
+            ok[mine[rc[mine] < rc[top] - GHOST_DB]] = False
     j = np.nonzero(ok)[0]
     return np.stack([near[j], j], axis=1)
 
@@ -184,6 +185,7 @@ class _Matched(NamedTuple):
     fit_kw: dict  # height keywords of fit_rigid_2d
     weights: np.ndarray  # (N,) relative inverse variances
     rcs: np.ndarray  # (N,) dBsm, NaN when unknown
+    rcs_ref: float | None  # dBsm of unit weight (None: RCS unknown)
 
 
 @dataclass
@@ -411,7 +413,7 @@ def _fit_one_radar(rig: _Rig, r: str, pose_G: dict, outlier_threshold: float, fi
         converged = scale is not None and abs(_wrap(new.theta - pose_G[r].theta)) < 1e-10 and np.allclose(new.t, pose_G[r].t, atol=1e-9)
         pose_G[r] = new
         fits[r] = f
-        matched[r] = _Matched(s_, d_, z_, info, keep, rej, kw, w_, rc_)
+        matched[r] = _Matched(s_, d_, z_, info, keep, rej, kw, w_, rc_, rcs_ref)
         if converged:
             break
         # robust unit-weight noise scale (median 2D residual length = 1.177 sigma), at least 1 cm
@@ -449,7 +451,7 @@ def _radar_result(rig: _Rig, r: str, m: _Matched, pose_G: dict, had_free_points:
     """Radar ``r``'s result: LiDAR-anchored fit at the final height (sigma, leave-one-out, per-reflector residuals);
     the pose is the joint one unless it strays beyond 99 % (chi-square, 3 dof) of that fit. Writes ``pose_G[r]``."""
     slant = rig.slant
-    s_, d_, z_, info, keep, rej, kw, w_, rc_ = m
+    s_, d_, z_, info, keep, rej, w_ = m.src, m.dst, m.z, m.info, m.keep, m.rejected, m.weights
     h = rig.heights[r]
     kw2 = _fit_kw(slant, h, h)
     # the pose is the joint one (same when no radar-only reflectors exist)
@@ -513,9 +515,10 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
     -> :class:`_Matched`), plus detections of reflectors that two or more radars see but the LiDAR does not (free 2D
     points at the median reflector height). Returns the new poses T_G_radar, heights and a summary."""
     names = list(fits)
-    free_init, free_obs = _free_points(scenes, names, pose_G, heights, keepinfo, slant, gate, z_nominal, in_region)
+    free_init, free_obs = _free_points(scenes, lidar_G, names, pose_G, heights, keepinfo, slant, gate, z_nominal, in_region)
     prob = _JointProblem.build(names, pose_G, heights, keepinfo, free_init, slant, z_nominal)
-    all_obs = _FreeObs(np.array([o[0] for o in free_obs], int), np.array([o[1] for o in free_obs], int), np.array([o[2] for o in free_obs]).reshape(-1, 2))
+    all_obs = _FreeObs(np.array([o[0] for o in free_obs], int), np.array([o[1] for o in free_obs], int), np.array([o[2] for o in free_obs]).reshape(-1, 2),
+                       np.array([o[3] for o in free_obs], float))
     x, obs, dropped = _solve_dropping_outliers(prob, all_obs)
     free_init = [f for i, f in enumerate(free_init) if i not in dropped]
     P, H, F = prob.unpack(x)
@@ -528,14 +531,16 @@ def _joint_refine(scenes, lidar_G, pose_G, heights, fits, keepinfo, slant, gate,
     return new_pose, new_h, {"enabled": True, "free_points": len(free_init), "free_points_dropped": len(dropped), "n_obs": int(len(rr) // 2), "rms": float(np.sqrt(np.mean(rr.reshape(-1, 2) ** 2) * 2)) if len(rr) else 0.0}
 
 
-def _free_points(scenes, names, pose_G, heights, keepinfo, slant, gate, z_nominal, in_region) -> tuple[list, list]:
+def _free_points(scenes, lidar_G, names, pose_G, heights, keepinfo, slant, gate, z_nominal, in_region) -> tuple[list, list]:
     """Radar-only reflectors: per scene, the detections no LiDAR match used (strong enough, inside ``in_region``,
-    in G under the current poses) clustered across radars; a cluster seen by >= 2 radars, once each, is a free point.
-    Returns the free points' starting xy in G and the observations (radar index, free point index, measurement)."""
+    not on a LiDAR reflector's echo path -- its multipath ghosts, :func:`multipath_of` --, in G under the current
+    poses) clustered across radars; a cluster seen by >= 2 radars, once each, is a free point.
+    Returns the free points' starting xy in G and the observations (radar index, free point index, measurement,
+    relative inverse variance: RCS weight x frames, as the radar's LiDAR matches)."""
     free_obs = []
     free_init = []
-    for sc in scenes:
-        pts, rid, mids = [], [], []
+    for si, sc in enumerate(scenes):
+        pts, rid, mids, wts = [], [], [], []
         for k, r in enumerate(names):
             m = np.asarray(sc.radar_xy.get(r, np.zeros((0, 2))), float).reshape(-1, 2)
             if len(m) == 0:
@@ -546,22 +551,28 @@ def _free_points(scenes, names, pose_G, heights, keepinfo, slant, gate, z_nomina
             if rc is not None and len(un) and np.isfinite(keepinfo[r].rcs).any():
                 # weak echoes (clutter, multipath) are not radar-only reflectors
                 un = un[np.asarray(rc, float)[un] >= np.nanpercentile(keepinfo[r].rcs, 10) - 6.0]
+            h = heights[r] if heights[r] is not None else 0.0
+            if slant and len(un) and len(lidar_G[si]):  # a LiDAR reflector's echo or its ground-bounce ghost is no free point
+                pg = lidar_G[si]
+                un = un[multipath_of(m[un], pose_G[r].inverse().apply(pg[:, :2]), pg[:, 2], h, gate) < 0]
             if len(un) == 0:
                 continue
-            h = heights[r] if heights[r] is not None else 0.0
             mg = pose_G[r].apply(deslant(m[un], z_nominal - h) if slant else m[un])
             inside = in_region(mg)
             un, mg = un[inside], mg[inside]
             if len(un) == 0:
                 continue
-            pts.append(mg), rid.append(np.full(len(un), k)), mids.append(m[un])
+            nc = (sc.radar_counts or {}).get(r)
+            w = (np.ones(len(un)) if rc is None else rcs_weights(np.asarray(rc, float)[un], ref=keepinfo[r].rcs_ref)) * (1 if nc is None else np.asarray(nc, float)[un])
+            pts.append(mg), rid.append(np.full(len(un), k)), mids.append(m[un]), wts.append(w)
         if not pts:
             continue
         fr = filter_detections([np.concatenate(pts)[np.concatenate(rid) == k] for k in range(len(names))], (-np.inf, np.inf), (-np.inf, np.inf), gate)
         allm = np.concatenate(mids)
         allr = np.concatenate(rid)
+        allw = np.concatenate(wts)
         order = np.argsort(allr, kind="stable")  # filter_detections concatenates radar by radar
-        allm, allr = allm[order], allr[order]
+        allm, allr, allw = allm[order], allr[order], allw[order]
         for c in np.nonzero(fr.cluster_radars >= 2)[0]:
             members = np.nonzero(fr.cluster == c)[0]
             if len(np.unique(allr[members])) != len(members):
@@ -569,16 +580,18 @@ def _free_points(scenes, names, pose_G, heights, keepinfo, slant, gate, z_nomina
             fid = len(free_init)
             free_init.append(fr.cluster_means[c])
             for mi in members:
-                free_obs.append((int(allr[mi]), fid, allm[mi]))
+                free_obs.append((int(allr[mi]), fid, allm[mi], float(allw[mi])))
     return free_init, free_obs
 
 
 class _FreeObs(NamedTuple):
-    """Radar detections of free points: radar index (N,), free point index (N,), measurement xy (N,2) radar frame."""
+    """Radar detections of free points: radar index (N,), free point index (N,), measurement xy (N,2) radar frame,
+    relative inverse variance (N,)."""
 
     radar: np.ndarray
     point: np.ndarray
     xy: np.ndarray
+    w: np.ndarray
 
 
 @dataclass
@@ -600,7 +613,7 @@ class _JointProblem:
         x0 = np.concatenate([np.concatenate([pose_G[r].as_array() for r in names]), np.array([heights[r] or 0.0 for r in names]), np.array(free_init).ravel()])
         anchored = []
         for k, r in enumerate(names):
-            s_, d_, z_, _info, keep, _rej, _kw, w_, _ = keepinfo[r]
+            s_, d_, z_, keep, w_ = keepinfo[r].src, keepinfo[r].dst, keepinfo[r].z, keepinfo[r].keep, keepinfo[r].weights
             anchored.append((k, s_[keep], d_[keep], z_[keep], np.sqrt(w_[keep])[:, None]))
         fixed_h = np.array([heights[r] if heights[r] is not None else 0.0 for r in names])
         return cls(len(names), slant, z_nominal, est_h, fixed_h, anchored, x0)
@@ -619,9 +632,9 @@ class _JointProblem:
         return slant_predict(q, pz - H[k]) if self.slant else q
 
     def free_errors(self, P, H, F, obs: _FreeObs, k: int) -> np.ndarray:
-        """(n,2) residuals of radar ``k``'s free-point observations (``obs.radar == k``)."""
+        """(n,2) residuals of radar ``k``'s free-point observations (``obs.radar == k``), at unit weight."""
         sel = obs.radar == k
-        return self.pred_radar(P, H, k, F[obs.point[sel]], np.full(sel.sum(), self.z_nominal)) - obs.xy[sel]
+        return (self.pred_radar(P, H, k, F[obs.point[sel]], np.full(sel.sum(), self.z_nominal)) - obs.xy[sel]) * np.sqrt(obs.w[sel])[:, None]
 
     def resid(self, x, obs: _FreeObs) -> np.ndarray:
         P, H, F = self.unpack(x)
@@ -643,7 +656,7 @@ def _solve_dropping_outliers(prob: _JointProblem, all_obs: _FreeObs):
     dropped: set = set()
     for _round in range(4):
         live = np.array([f not in dropped for f in all_obs.point], bool)
-        obs = _FreeObs(all_obs.radar[live], all_obs.point[live], all_obs.xy[live])
+        obs = _FreeObs(all_obs.radar[live], all_obs.point[live], all_obs.xy[live], all_obs.w[live])
         mask = free_mask.copy()
         for f in dropped:
             mask[4 * nr + 2 * f:4 * nr + 2 * f + 2] = False

@@ -63,7 +63,11 @@ def reject_outliers(src: np.ndarray, dst: np.ndarray, threshold: float = 0.15, m
         q = g.pose.apply(src[idx[j]][None])
         pred = q if zz is None else slant_predict(q, zz[idx[j]] - g.height)
         rj = float(np.linalg.norm(pred[0] - dst[idx[j]]))
-        scale = float(np.sqrt(np.mean(w[rest] * np.sum(g.residuals**2, axis=1))))  # RMS at unit weight
+        unit = np.sqrt(w[rest]) * np.linalg.norm(g.residuals, axis=1)
+        dof = max(2 * len(rest) - n_par, 1)
+        # robust unit-weight sigma of the others (median 2D residual length = 1.177 sigma, corrected for the fitted
+        # parameters): weak outliers among them must not hide this one (their RMS would)
+        scale = float(np.median(unit) / 1.177 * np.sqrt(2 * len(rest) / dof))
         if rj > threshold and rj * np.sqrt(w[idx[j]]) > k_sigma * scale:
             keep[idx[j]] = False
             reasons.append((int(idx[j]), f"hold-out residual {rj:.3f} m > {threshold:g} m and > {k_sigma:g}x the others' RMS ({g.rms:.3f} m)"))
