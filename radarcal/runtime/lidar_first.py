@@ -48,6 +48,7 @@ class LidarFirstConfig:
     seen_box_s: float = 0.1
     box_shadow: bool = False  # run the box path beside; labels no LiDAR track holds now come from it (opt-in: docs)
     prefer_box_m: float = 0.3  # a LiDAR-seen track's box-depth fix farther than this from it is output instead
+    sparse_clusters: bool = True  # tracks take components too sparse to start one (Tracker3D.update_sparse; measured: docs)
     exclusion_m: float = 0.6  # output tracks nearer than this are one robot (a robot is <= 0.6 m across): one is measured
 
 
@@ -135,7 +136,15 @@ class LidarFirst:
             sigma = np.sqrt(0.05**2 + s**2 + (0.15 / np.sqrt(cl.n)) ** 2)
             ext = cl.hi - cl.lo
             hulls = [(cl.lo[j].copy(), cl.hi[j].copy()) for j in range(len(cl))]
-            self.tracker.update_clusters(cl.centre, sigma, cl.t, cl.aerial, ext, hulls, t_ref)
+            ids = self.tracker.update_clusters(cl.centre, sigma, cl.t, cl.aerial, ext, hulls, t_ref)
+        else:
+            ids = []
+        sp = cl.sparse
+        if self.cfg.sparse_clusters and sp is not None and len(sp):
+            s = range_sigma(sp.range_m, np.deg2rad(self.cfg.sigma_rot_deg), self.cfg.sigma_trans_m)
+            # a few returns from one rosette pass: the centre across the view is uncertain by up to half a robot
+            sigma = np.sqrt(0.05**2 + s**2 + (0.15 / np.sqrt(sp.n)) ** 2 + np.where(sp.aerial, 0.25, 0.12) ** 2)
+            self.tracker.update_sparse(sp.centre, sigma, sp.t, sp.aerial, set(ids))
 
     # --- camera frames ---------------------------------------------------------------------------------------------
     def track_hulls(self, t: float) -> tuple[list[Track3D], np.ndarray, np.ndarray]:

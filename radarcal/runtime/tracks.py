@@ -227,6 +227,7 @@ class Tracker3D:
         self.init_speed_sigma = float(init_speed_sigma)
         self.reacquire_m = 2.0
         self.coast_damping_s = 0.5
+        self.sparse_gate_m = 0.8  # a sparse component farther than this from a track's prediction is not that robot
         self.learn_s = 2.0  # tracks born within this long of the first cluster are static suspects (Track3D.evidence)
         self.t0: float | None = None
         self.tracks: list[Track3D] = []
@@ -319,6 +320,32 @@ class Tracker3D:
                 tr.extent = np.asarray(extent[j], float).copy()
                 tr.hull, tr.t_points = hulls[j], float(t_ref)
                 ids[j] = tr.id
+        return ids
+
+    def update_sparse(self, centre: np.ndarray, sigma: np.ndarray, t: np.ndarray, aerial: np.ndarray, skip: set[int]) -> list[int]:
+        """Sparse components (too few returns or too small for a robot of their own, :attr:`Clusters.sparse`) taken
+        by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``), Hungarian on distance within
+        ``sparse_gate_m`` (and the track's own gate): a far robot's 3-7 returns keep its track measured, they never
+        start one. Returns the track id per component (-1: none took it)."""
+        from scipy.optimize import linear_sum_assignment
+
+        ids = [-1] * len(centre)
+        live = [tr for tr in self.tracks if tr.id not in skip and tr.state in (CONFIRMED, LOST) and tr.n_lidar]
+        if not len(centre) or not live:
+            return ids
+        X = np.array([tr.x for tr in live])
+        dt = float(np.mean(t)) - np.array([tr.t for tr in live])
+        d = np.linalg.norm(X[:, None, :2] + X[:, None, 2:] * dt[:, None, None] - centre[None, :, :2], axis=2)
+        gate = np.minimum(np.stack([self._gate(tr, sigma, t) for tr in live]), self.sparse_gate_m)
+        air = np.array([tr.aerial for tr in live])
+        cost = np.where((d > gate) | (air[:, None] != aerial[None, :]), 1e6, d)
+        for i, j in zip(*linear_sum_assignment(cost)):
+            if cost[i, j] >= 1e6:
+                continue
+            tr = live[i]
+            self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
+            tr.t_lidar = max(tr.t_lidar, float(t[j]))
+            ids[j] = tr.id
         return ids
 
     # --- box fixes (no cluster) ---
