@@ -29,6 +29,7 @@ import numpy as np
 
 from radarcal.runtime.clusters import REJECT_REASONS
 
+DETAIL: list = []
 ROWS: list = []  # (replay, t, label, range, LiDAR hits, cause) of every miss (for a closer look)
 ROBOT_INTENSITY = (45.0, 75.0)  # radarcal.synth.detections: robot returns 60 +- 3, field 25, structures 90
 
@@ -175,6 +176,7 @@ def _cause(ri: int, xy: np.ndarray, c: dict, lf, sweep: float, t_truth, P, t: fl
     e = float(np.linalg.norm(cl.centre[k, :2] - truth_xy))
     if e > 0.3:
         return f"cluster centre > 0.3 m off ({band}{', aerial' if cl.aerial[k] else ''})"
+    DETAIL.append((t, float(t - tr.t_lidar), e, float(np.linalg.norm(tr.x[:2] - xy)), tr.x[2:].round(2).tolist(), float(tr.sigma), rng, int(cl.n[k])))
     return "centre within 0.3 m, track output > 0.3 m off"
 
 
