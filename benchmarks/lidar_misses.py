@@ -38,17 +38,22 @@ class _Recorder:
     """Stands in for ``LidarFirst.filter`` and ``Tracker3D.update_clusters``: remembers what the newest cloud gave."""
 
     def __init__(self, lf):
-        self.lf, self.flt, self.upd = lf, lf.filter, lf.tracker.update_clusters
-        lf.filter, lf.tracker.update_clusters = self, self._update_clusters
+        self.lf, self.flt, self.upd, self.upd_sparse = lf, lf.filter, lf.tracker.update_clusters, lf.tracker.update_sparse
+        lf.filter, lf.tracker.update_clusters, lf.tracker.update_sparse = self, self._update_clusters, self._update_sparse
         self.last: dict = {}
 
     def __call__(self, pts, t):
         p, idx, bg = self.flt(pts, t)
-        self.last = {"idx": idx, "bg": bg, "ids": []}
+        self.last = {"idx": idx, "bg": bg, "ids": [], "sparse_ids": []}
         return p, idx, bg
 
     def __getattr__(self, name):
         return getattr(self.flt, name)
+
+    def _update_sparse(self, *a, **k):
+        ids = self.upd_sparse(*a, **k)
+        self.last["sparse_ids"] = list(ids)
+        return ids
 
     def _update_clusters(self, *a, **k):
         ids = self.upd(*a, **k)
@@ -116,7 +121,7 @@ def breakdown(rep: Path) -> tuple[Counter, int, list]:
             dyn_owner = owner[idx[~bg]]
             cloud = {"owner": owner, "field": np.bincount(owner[idx][owner[idx] >= 0], minlength=len(labels)),
                      "dyn": np.bincount(dyn_owner[dyn_owner >= 0], minlength=len(labels)), "dyn_owner": dyn_owner, "cl": cl,
-                     "ids": rec.last["ids"], "all": np.bincount(owner[owner >= 0], minlength=len(labels))}  # fmt: skip
+                     "ids": rec.last["ids"], "sparse_ids": rec.last["sparse_ids"], "all": np.bincount(owner[owner >= 0], minlength=len(labels))}  # fmt: skip
             for k in range(len(cl)):  # centre error of clusters that are mostly one robot's
                 own = dyn_owner[cl.labels == k]
                 if len(own) and (own >= 0).mean() > 0.7:
@@ -156,7 +161,15 @@ def _cause(ri: int, xy: np.ndarray, c: dict, lf, sweep: float, t_truth, P, t: fl
     kept = cl.labels[mine]
     if not (kept >= 0).any():
         comp = np.bincount(cl.component[mine]).argmax()
-        return f"cluster rejected: {REJECT_REASONS[int(cl.rejected[comp])]}"
+        why = REJECT_REASONS[int(cl.rejected[comp])]
+        sp = cl.sparse.labels[mine] if cl.sparse is not None else np.zeros(0, int)
+        if (sp >= 0).any():  # sparse: a track could have taken it
+            j = int(np.bincount(sp[sp >= 0]).argmax())
+            if j < len(c["sparse_ids"]) and c["sparse_ids"][j] >= 0:
+                return f"sparse ({why}), taken by a track, still > 0.3 m off"
+            near = [o for o in lf.tracker.tracks if o.state != "tentative" and np.linalg.norm(o.x[:2] - xy) < 2.0]
+            why += ", sparse; " + ("a track within 2 m did not take it" if near else "no track near")
+        return f"cluster rejected: {why}"
     k = int(np.bincount(kept[kept >= 0]).argmax())
     members = own[cl.labels == k]
     if (members == ri).mean() < 0.6:

@@ -286,3 +286,43 @@ def test_sparse_components_keep_a_track_measured_but_never_start_one():
         tk.step(t)
         assert ids == [tr.id, -1] and tr.state == CONFIRMED
     assert tk.tracks == [tr] and abs(tr.x[0] - (22.0 + 0.5 * 1.2)) < 0.3 and abs(tr.x[1] - 3.0) < 0.3
+
+
+def _standing_robot_run(suspect_protect_s: float):
+    """LiDAR only, 10 Hz: a robot stands at (7, 4) from the start for 3 s, then drives off along x at 0.8 m/s; a
+    referee's box (0.5 x 0.4 x 0.8 m) stands in a corner all along. Returns per cloud (t, the robot's true xy, the
+    reported tracks' xy, the robot's points left dynamic, whether a reported track is on the box)."""
+    from radarcal.runtime.lidar_first import LidarFirst, LidarFirstConfig
+
+    rng = np.random.default_rng(8)
+    T = make_T(np.eye(3), SENSOR)
+    lf = LidarFirst(T, FIELD, LidarFirstConfig(sweep_s=0.0, suspect_protect_s=suspect_protect_s))
+    box_c = np.array([27.2, 0.6])
+    rows = []
+    for k in range(70):
+        t = 0.1 * k
+        robot = np.array([7.0 + 0.8 * max(0.0, t - 3.0), 4.0])
+        ground = np.column_stack([rng.uniform(1, 27, 3000), rng.uniform(1, 14, 3000), rng.normal(0, 0.02, 3000)])
+        r_pts = _box_points(robot, n=25, rng=rng)
+        b_pts = _box_points(box_c, (0.5, 0.4, 0.8), n=8, rng=rng)
+        pts = np.vstack([ground, r_pts, b_pts])
+        lf.add_cloud(t, transform_f32(invert_T(T), pts))
+        out = lf.frame(t, np.zeros((0, 4)), [], np.zeros(0))
+        p, idx, bg = lf.filter(transform_f32(invert_T(T), r_pts), t)
+        xy = np.array([tr.x[:2] for tr in out]).reshape(-1, 2)
+        rows.append((t, robot, xy, int((~bg).sum()), bool(len(xy) and np.linalg.norm(xy - box_c, axis=1).min() < 1.0)))
+    return rows
+
+
+def test_a_robot_standing_still_from_the_start_is_kept_and_reported_when_it_moves():
+    """LiDAR only, a robot and a referee's box both standing from the start look alike: neither is reported while
+    they stand (static suspects), but the robot's track is kept (its points are not learnt as background during the
+    first ``suspect_protect_s``) and it is reported within 0.3 m once it moves; the box never is."""
+    rows = _standing_robot_run(5.0)
+    assert all(not on_box for *_, on_box in rows)  # no ghost on the referee's box
+    assert all(n_dyn >= 10 for t, _, _, n_dyn, _ in rows if t < 3.0)  # standing: not absorbed
+    hit = [t for t, robot, xy, _, _ in rows if len(xy) and np.linalg.norm(xy - robot, axis=1).min() <= 0.3]
+    assert hit and hit[0] <= 3.5 and all(t in hit for t, *_ in rows if t >= 3.5), hit  # reported 0.5 s after it starts
+    # without that protection the standing robot is learnt as background within its first seconds
+    rows = _standing_robot_run(0.0)
+    assert min(n_dyn for t, _, _, n_dyn, _ in rows if 2.0 <= t < 3.0) < 5
