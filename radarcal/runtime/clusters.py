@@ -44,6 +44,7 @@ class ClusterParams:
     merge_max_m: float = 0.75
     robot_m: float = 0.65
     push_aerial_m: float = 0.4  # the aerial robot is ~0.8 m across
+    sparse_aerial: bool = True  # the aerial robot's sparse returns as Clusters.sparse too (pipeline: LiDAR only)
     push_face_m: float = 0.30  # nearest return -> centre along the view (0.5 m robots at a random heading: 0.32 on average)
 
 
@@ -248,7 +249,7 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     # sparse: too few points or too small a footprint for a robot of its own (a far robot's 3-7 returns from one
     # rosette pass, the aerial robot's 4-6), but no larger than one: a track may take it (Tracker3D.update_sparse)
     sp = np.flatnonzero((np.isin(why, (1, 2, 3)) | ((why == 7) & (bottom <= q.aerial_min_m))) & (n >= q.min_points_far) & (foot <= q.footprint_m[1])
-                        & (hi[:, 2] - smin <= q.height_m[1] + (q.aerial_extent_m + 2.0) * aerial_z))  # fmt: skip
+                        & (hi[:, 2] - smin <= q.height_m[1] + (q.aerial_extent_m + 2.0) * aerial_z) & (q.sparse_aerial | ~aerial_z))  # fmt: skip
     smap = np.full(nc, -1)
     smap[sp] = np.arange(len(sp))
     out.sparse = Clusters(centre_all[sp], cen[sp], lo[sp], hi[sp], n[sp], tm[sp], aerial_z[sp], rng[sp], smap[comp])
