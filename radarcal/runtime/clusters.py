@@ -20,7 +20,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ClusterParams", "Clusters", "cluster_points", "connected_labels"]
+__all__ = ["ClusterParams", "Clusters", "cluster_points", "connected_labels", "REJECT_REASONS"]
+
+# the first gate a component failed (Clusters.rejected): what a miss breakdown reports
+REJECT_REASONS = ("kept", "too few points", "aerial gate (footprint / thickness)", "footprint too small", "footprint too large", "top too low", "top too high",
+                  "bottom too high (not aerial)")  # fmt: skip
 
 
 @dataclass
@@ -40,6 +44,7 @@ class ClusterParams:
     merge_max_m: float = 0.75
     robot_m: float = 0.65
     push_aerial_m: float = 0.4  # the aerial robot is ~0.8 m across
+    sparse_aerial: bool = True  # the aerial robot's sparse returns as Clusters.sparse too (pipeline: LiDAR only)
     push_face_m: float = 0.30  # nearest return -> centre along the view (0.5 m robots at a random heading: 0.32 on average)
 
 
@@ -58,6 +63,9 @@ class Clusters:
     aerial: np.ndarray
     range_m: np.ndarray
     labels: np.ndarray
+    component: np.ndarray | None = None  # (M,) component of every input point before the gates (-1 none)
+    rejected: np.ndarray | None = None  # (C,) why each component failed the gates: a REJECT_REASONS index, 0 = kept
+    sparse: "Clusters | None" = None  # rejected components a robot's track may take (few points, small; not larger than a robot)
 
     def __len__(self) -> int:
         return len(self.n)
@@ -214,8 +222,11 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     bottom = lo[:, 2] - smin
     need = np.round(np.interp(rng, [q.loose_range_m * 0.6, 25.0], [q.min_points_near, q.min_points_far])).astype(int)
     ground = (foot >= q.footprint_m[0]) & (foot <= q.footprint_m[1]) & (top >= q.height_m[0]) & (top <= q.height_m[1]) & (bottom <= q.max_bottom_m)
-    aerial = (bottom >= q.aerial_min_m) & (foot >= 0.2) & (foot <= 1.4) & (hi[:, 2] - lo[:, 2] <= q.aerial_extent_m)
+    aerial_z = bottom >= q.aerial_min_m  # at the aerial robot's height (whatever its size)
+    aerial = aerial_z & (foot >= 0.2) & (foot <= 1.4) & (hi[:, 2] - lo[:, 2] <= q.aerial_extent_m)
     ok = (ground | aerial) & (n >= need)
+    why = np.select([ok, n < need, bottom >= q.aerial_min_m, foot < q.footprint_m[0], foot > q.footprint_m[1], top < q.height_m[0], top > q.height_m[1]],
+                    np.arange(7), 7)  # fmt: skip
     keep = np.flatnonzero(ok)
     remap = np.full(nc, -1)
     remap[keep] = np.arange(len(keep))
@@ -229,8 +240,17 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     amax = np.full(nc, -np.inf)
     np.minimum.at(amin, comp, along)
     np.maximum.at(amax, comp, along)
-    v = v_all[keep]
-    target = np.maximum(0.5 * (amin + amax), amin + np.where(aerial, q.push_aerial_m, q.push_face_m))[keep]
-    cen_along = np.einsum("ij,ij->i", cen[keep, :2], v)
-    centre = np.column_stack([cen[keep, :2] + v * (target - cen_along)[:, None], np.where(aerial[keep], 0.5 * (lo[keep, 2] + hi[keep, 2]), smin[keep])])
-    return Clusters(centre, cen[keep], lo[keep], hi[keep], n[keep], tm[keep], aerial[keep], rng[keep], remap[comp])
+    # every component's centre (the kept ones and the sparse ones a track may still take: Clusters.sparse)
+    target = np.maximum(0.5 * (amin + amax), amin + np.where(aerial_z, q.push_aerial_m, q.push_face_m))
+    cen_along = np.einsum("ij,ij->i", cen[:, :2], v_all)
+    centre_all = np.column_stack([cen[:, :2] + v_all * (target - cen_along)[:, None], np.where(aerial_z, 0.5 * (lo[:, 2] + hi[:, 2]), smin)])
+    centre = centre_all[keep]
+    out = Clusters(centre, cen[keep], lo[keep], hi[keep], n[keep], tm[keep], aerial[keep], rng[keep], remap[comp], comp, why)
+    # sparse: too few points or too small a footprint for a robot of its own (a far robot's 3-7 returns from one
+    # rosette pass, the aerial robot's 4-6), but no larger than one: a track may take it (Tracker3D.update_sparse)
+    sp = np.flatnonzero((np.isin(why, (1, 2, 3)) | ((why == 7) & (bottom <= q.aerial_min_m))) & (n >= q.min_points_far) & (foot <= q.footprint_m[1])
+                        & (hi[:, 2] - smin <= q.height_m[1] + (q.aerial_extent_m + 2.0) * aerial_z) & (q.sparse_aerial | ~aerial_z))  # fmt: skip
+    smap = np.full(nc, -1)
+    smap[sp] = np.arange(len(sp))
+    out.sparse = Clusters(centre_all[sp], cen[sp], lo[sp], hi[sp], n[sp], tm[sp], aerial_z[sp], rng[sp], smap[comp])
+    return out

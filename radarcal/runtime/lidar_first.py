@@ -48,6 +48,9 @@ class LidarFirstConfig:
     seen_box_s: float = 0.1
     box_shadow: bool = False  # run the box path beside; labels no LiDAR track holds now come from it (opt-in: docs)
     prefer_box_m: float = 0.3  # a LiDAR-seen track's box-depth fix farther than this from it is output instead
+    sparse_clusters: bool = True  # tracks take components too sparse to start one (Tracker3D.update_sparse; measured: docs)
+    suspect_protect_s: float = 5.0  # static suspects are not learnt as background during the run's first seconds
+    sparse_sigma_m: tuple[float, float] = (0.12, 0.25)  # added to a sparse component's sigma: ground, aerial
     exclusion_m: float = 0.6  # output tracks nearer than this are one robot (a robot is <= 0.6 m across): one is measured
 
 
@@ -97,7 +100,10 @@ class LidarFirst:
         p, idx, bg = self.filter(pts, t_ref)
         # learn: every off-field point except those on tracked robots and inside detection boxes
         # (tracks a box has named or that have moved: a static unnamed cluster is what the background must learn)
-        prot_xy = np.array([tr.x[:2] + tr.x[2:] * (t_ref - tr.t) for tr in self.tracker.tracks if tr.state != TENTATIVE and tr.evidence]).reshape(-1, 2)
+        # (and, in the first ``suspect_protect_s``, the static suspects: a robot that moves off slowly is not eaten first)
+        early = self.tracker.t0 is not None and t_ref - self.tracker.t0 < self.cfg.suspect_protect_s
+        prot_xy = np.array([tr.x[:2] + tr.x[2:] * (t_ref - tr.t) for tr in self.tracker.tracks
+                            if tr.state != TENTATIVE and (tr.evidence or (early and tr.static_suspect))]).reshape(-1, 2)  # fmt: skip
         learn = p
         if self.protect_boxes is not None and len(self.protect_boxes) and self.camera is not None and len(p):
             uv, ok, _ = self.camera.project_from(self.T_cam_field, p.astype(float))
@@ -135,7 +141,15 @@ class LidarFirst:
             sigma = np.sqrt(0.05**2 + s**2 + (0.15 / np.sqrt(cl.n)) ** 2)
             ext = cl.hi - cl.lo
             hulls = [(cl.lo[j].copy(), cl.hi[j].copy()) for j in range(len(cl))]
-            self.tracker.update_clusters(cl.centre, sigma, cl.t, cl.aerial, ext, hulls, t_ref)
+            ids = self.tracker.update_clusters(cl.centre, sigma, cl.t, cl.aerial, ext, hulls, t_ref)
+        else:
+            ids = []
+        sp = cl.sparse
+        if self.cfg.sparse_clusters and sp is not None and len(sp):
+            s = range_sigma(sp.range_m, np.deg2rad(self.cfg.sigma_rot_deg), self.cfg.sigma_trans_m)
+            # a few returns from one rosette pass: the centre across the view is uncertain by up to half a robot
+            sigma = np.sqrt(0.05**2 + s**2 + (0.15 / np.sqrt(sp.n)) ** 2 + np.where(sp.aerial, *self.cfg.sparse_sigma_m[::-1]) ** 2)
+            self.tracker.update_sparse(sp.centre, sigma, sp.t, sp.aerial, set(ids))
 
     # --- camera frames ---------------------------------------------------------------------------------------------
     def track_hulls(self, t: float) -> tuple[list[Track3D], np.ndarray, np.ndarray]:

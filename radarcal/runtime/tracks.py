@@ -149,7 +149,7 @@ class Track3D:
     static_suspect: bool = False  # born where something already stood: in the first seconds of the run (Tracker3D.learn_s)
     envelope: np.ndarray | None = None  # (4,) x0, y0, x1, y1: union of every cluster's points (field frame) so far
     MOVED_M = 1.0  # displacement from where a static suspect started that counts as moving (clutter jitters by up to 0.5 m)
-    STATIC_EXTENT_M = 0.75  # an envelope wider than any robot (0.8 m) and its noise: the points have swept over the field
+    STATIC_EXTENT_M = 0.65  # an envelope wider than robot-sized static clutter seen by a sparse scan (the referee's box 0.5 x 0.4 m: <= 0.53 m on seeds 1-3)
 
     @property
     def moved(self) -> bool:
@@ -214,7 +214,7 @@ class Tracker3D:
     * Measurements carry their own time (the mean firing time of a cluster's points): the track is predicted to it,
       updated, and predicted on to the frame time (motion compensation of late clouds, cause 1)."""
 
-    def __init__(self, accel_sigma: float = 3.0, gate_m: float = 0.8, confirm_hits: int = 2, confirm_box_hits: int = 3, tentative_s: float = 0.5,
+    def __init__(self, accel_sigma: float = 1.5, gate_m: float = 0.8, confirm_hits: int = 2, confirm_box_hits: int = 3, tentative_s: float = 0.5,
                  lost_after_s: float = 0.35, max_coast_s: float = 1.5, vmax: float = 4.5, init_speed_sigma: float = 1.5):  # fmt: skip
         self.q = float(accel_sigma) ** 2
         self.gate_m = float(gate_m)
@@ -227,6 +227,7 @@ class Tracker3D:
         self.init_speed_sigma = float(init_speed_sigma)
         self.reacquire_m = 2.0
         self.coast_damping_s = 0.5
+        self.sparse_gate_m = 0.8  # a sparse component farther than this from a track's prediction is not that robot
         self.learn_s = 2.0  # tracks born within this long of the first cluster are static suspects (Track3D.evidence)
         self.t0: float | None = None
         self.tracks: list[Track3D] = []
@@ -319,6 +320,32 @@ class Tracker3D:
                 tr.extent = np.asarray(extent[j], float).copy()
                 tr.hull, tr.t_points = hulls[j], float(t_ref)
                 ids[j] = tr.id
+        return ids
+
+    def update_sparse(self, centre: np.ndarray, sigma: np.ndarray, t: np.ndarray, aerial: np.ndarray, skip: set[int]) -> list[int]:
+        """Sparse components (too few returns or too small for a robot of their own, :attr:`Clusters.sparse`) taken
+        by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``), Hungarian on distance within
+        ``sparse_gate_m`` (and the track's own gate): a far robot's 3-7 returns keep its track measured, they never
+        start one. Returns the track id per component (-1: none took it)."""
+        from scipy.optimize import linear_sum_assignment
+
+        ids = [-1] * len(centre)
+        live = [tr for tr in self.tracks if tr.id not in skip and tr.state in (CONFIRMED, LOST) and tr.n_lidar]
+        if not len(centre) or not live:
+            return ids
+        X = np.array([tr.x for tr in live])
+        dt = float(np.mean(t)) - np.array([tr.t for tr in live])
+        d = np.linalg.norm(X[:, None, :2] + X[:, None, 2:] * dt[:, None, None] - centre[None, :, :2], axis=2)
+        gate = np.minimum(np.stack([self._gate(tr, sigma, t) for tr in live]), self.sparse_gate_m)
+        air = np.array([tr.aerial for tr in live])
+        cost = np.where((d > gate) | (air[:, None] != aerial[None, :]), 1e6, d)
+        for i, j in zip(*linear_sum_assignment(cost)):
+            if cost[i, j] >= 1e6:
+                continue
+            tr = live[i]
+            self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
+            tr.t_lidar = max(tr.t_lidar, float(t[j]))
+            ids[j] = tr.id
         return ids
 
     # --- box fixes (no cluster) ---
