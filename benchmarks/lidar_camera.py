@@ -499,6 +499,15 @@ def verdict_sweep(families=("family2", "old"), seeds=range(30), cache: Path = VE
     return out
 
 
+def _good_by(records: list[dict], key: str) -> dict:
+    """{value of ``key``: (scenes, within 0.1 deg / 2 cm)}."""
+    out: dict = {}
+    for r in records:
+        n, g = out.get(r.get(key) or "?", (0, 0))
+        out[r.get(key) or "?"] = (n + 1, g + (r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1]))
+    return out
+
+
 def verdict_table(records: list[dict], options=None) -> dict:
     """False-refusal / false-acceptance table of ``edge_verdict`` (re-applied to the stored checks) per family."""
     from radarcal.extrinsics.refine import RefineOptions, edge_verdict, sigma_for_verdict
@@ -518,13 +527,9 @@ def verdict_table(records: list[dict], options=None) -> dict:
         # the verdict as it was when the scene ran (stored "converged"; the standard-deviation bootstrap before this change)
         prev_fr, prev_fa = sum(not r["converged"] for r in good), sum(r["converged"] for r in bad)
         acc_cov = [c for r, c in zip(rs, covered) if acc[id(r)]]
-        by_lidar = {}
-        for r in rs:
-            k = r.get("lidar") or "?"
-            n_ok = by_lidar.get(k, (0, 0))
-            by_lidar[k] = (n_ok[0] + 1, n_ok[1] + (r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1]))
+        by_lidar, by_layout = _good_by(rs, "lidar"), _good_by(rs, "layout")
         rows[fam] = {"scenes": len(rs), "good": len(good), "bad": len(bad), "middle": len(rs) - len(good) - len(bad), "prev_false_refusals": prev_fr,
-                     "prev_false_accepts": prev_fa, "accepted_covered": sum(acc_cov), "by_lidar": by_lidar,
+                     "prev_false_accepts": prev_fa, "accepted_covered": sum(acc_cov), "by_lidar": by_lidar, "by_layout": by_layout,
                      "false_refusals": sum(not acc[id(r)] for r in good), "false_accepts": sum(acc[id(r)] for r in bad),
                      "accepted": sum(acc.values()), "rest_covered": sum(rest), "rest": len(rest), "all_covered": sum(covered)}
     return rows
@@ -549,7 +554,8 @@ def verdict_report(families=("family2", "old"), n: int = 30, cached_only: bool =
     for fam, r in rows.items():
         print(f"| {fam} | {r['scenes']} | {r['good']} ({100 * r['good'] / max(r['scenes'], 1):.0f} %) | {r['false_refusals']} ({100 * r['false_refusals'] / max(r['good'], 1):.0f} %); before: {r['prev_false_refusals']} | "
               f"{r['bad']} | {r['false_accepts']}; before: {r['prev_false_accepts']} | {r['middle']} | {r['accepted']} (sigma covers {r['accepted_covered']}) | {r['all_covered']}/{r['scenes']} / {r['rest_covered']}/{r['rest']} |")
-    print("\nwithin 0.1 deg / 2 cm by LiDAR pattern: " + "; ".join(f"{fam}: " + ", ".join(f"{k} {g}/{n}" for k, (n, g) in r["by_lidar"].items()) for fam, r in rows.items()))
+    for what in ("lidar", "layout"):
+        print(f"within 0.1 deg / 2 cm by {what}: " + "; ".join(f"{fam}: " + ", ".join(f"{k} {g}/{n}" for k, (n, g) in sorted(r['by_' + what].items())) for fam, r in rows.items()))
     for rec in recs:
         print(f"  {rec['family']:>8} {rec['seed']:>3} {rec['layout']:>10} {str(rec['lidar']):>8} {rec['err_deg']:7.3f} deg {rec['err_m'] * 100:6.2f} cm  "
               f"{'converged' if edge_verdict(rec['checks'], RefineOptions(coarse_search_deg=6.0, translation_prior_m=0.3))[0] else 'refused':>9}  {rec['seconds']:.0f} s")
