@@ -379,17 +379,81 @@ def verdict_scene(family: str, seed: int):
     return render_family2_scene(Family2Params(seed=seed, duration_s=1.0, init_deg=3.0, init_m=0.10))
 
 
-def verdict_run(scene, **opts):
-    """Edges + refinement exactly as ``radarcal lidar-camera --refine`` runs them by default (crop to the camera,
-    plane + reflectivity edges, LSD >= 40 px, translation prior 0.3 m)."""
+def _verdict_edge_scenes(scene, methods=("lsd",)) -> dict:
+    """The scene's LiDAR edges (crop to the camera, plane + reflectivity edges) with image edges (>= 40 px) of each
+    method, as ``radarcal lidar-camera --refine`` builds them: {method: [EdgeScene]}."""
     from radarcal.extrinsics.edges import crop_to_camera, image_edges, lidar_edges, lidar_intensity_edges, merge_edges
-    from radarcal.extrinsics.refine import EdgeScene, RefineOptions, refine_edges
+    from radarcal.extrinsics.refine import EdgeScene
 
     view = crop_to_camera(scene.points, scene.camera, scene.T_init, margin=0.3)
     pts = scene.points[view]
     le = merge_edges(lidar_edges(pts, voxel=0.5, max_range=60.0), lidar_intensity_edges(pts, scene.intensity[view], max_range=60.0))
-    sc = EdgeScene(scene.camera, le, image_edges(scene.image, min_length=40))
-    return refine_edges([sc], scene.T_init, RefineOptions(**{"coarse_search_deg": 6.0, "translation_prior_m": 0.3, **opts}))
+    return {m: [EdgeScene(scene.camera, le, image_edges(scene.image, min_length=40, method=m))] for m in methods}
+
+
+def verdict_run(scene, image_edges: str = "lsd", **opts):
+    """Edges + refinement exactly as ``radarcal lidar-camera --refine [--image-edges auto]`` runs them (translation
+    prior 0.3 m)."""
+    from radarcal.extrinsics.refine import RefineOptions, refine_edges, refine_edges_choosing
+
+    o = RefineOptions(**{"coarse_search_deg": 6.0, "translation_prior_m": 0.3, **opts})
+    if image_edges == "auto":
+        cand = _verdict_edge_scenes(scene, ("lsd", "lsd+canny", "canny"))
+        chosen, results, _ = refine_edges_choosing(cand, cand.pop("canny"), scene.T_init, o)
+        return results[chosen]
+    return refine_edges(_verdict_edge_scenes(scene, (image_edges,))[image_edges], scene.T_init, o)
+
+
+def _verdict_cache(image_edges: str) -> Path:
+    """The sweep's cache: one per image-edge method (records are keyed by family and seed)."""
+    return VERDICT_CACHE if image_edges == "lsd" else VERDICT_CACHE.with_name(f"lidar_camera_verdict_{image_edges.replace('+', '_')}.jsonl")
+
+
+EDGES_CACHE = VERDICT_CACHE.with_name("lidar_camera_edges_choice.jsonl")
+
+
+def edges_choice(families=("family2", "old"), n: int = 30, first: int = 0) -> dict:
+    """Accuracy of LSD image edges (the default) vs ``--image-edges auto`` (LSD and LSD+Canny refined, the pose with
+    the lower alignment cost on Canny edges kept), fast runs (no bootstrap, no stability restarts: the verdict is
+    not measured here). Resumable (one JSON line per family/seed in ``EDGES_CACHE``)."""
+    from radarcal import geometry
+    from radarcal.extrinsics.refine import RefineOptions, refine_edges_choosing
+
+    o = RefineOptions(coarse_search_deg=6.0, translation_prior_m=0.3, bootstrap=0, stability_checks=0)
+    done = {}
+    if EDGES_CACHE.exists():
+        done = {(r["family"], r["seed"]): r for r in map(json.loads, EDGES_CACHE.read_text().splitlines())}
+    good = lambda e: e[0] <= VERDICT_GOOD[0] and e[1] <= VERDICT_GOOD[1]  # noqa: E731
+    bad = lambda e: e[0] > VERDICT_BAD[0] or e[1] > VERDICT_BAD[1]  # noqa: E731
+    rows = {}
+    for fam in families:
+        for seed in range(first, first + n):
+            if (fam, seed) not in done:
+                t0 = time.perf_counter()
+                s = verdict_scene(fam, seed)
+                cand = _verdict_edge_scenes(s, ("lsd", "lsd+canny", "canny"))
+                referee = cand.pop("canny")
+                best, results, costs = refine_edges_choosing(cand, referee, s.T_init, o)  # results["lsd"] is the default's run
+                errs = {m: geometry.pose_error(r.T_cam_lidar, s.T_cam_lidar) for m, r in results.items()}
+                rec = {"family": fam, "seed": seed, "layout": s.params.get("layout", "structured"), "lidar": s.params.get("lidar"), "chosen": best, "referee_cost": costs,
+                       "err": {m: list(e) for m, e in errs.items()}, "seconds": time.perf_counter() - t0}
+                EDGES_CACHE.parent.mkdir(parents=True, exist_ok=True)
+                with EDGES_CACHE.open("a") as f:
+                    f.write(json.dumps(rec) + "\n")
+                done[(fam, seed)] = rec
+            r = done[(fam, seed)]
+            e_l, e_c = r["err"]["lsd"], r["err"][r["chosen"]]
+            print(f"  {fam:>8} {seed:>3} {r['layout']:>10} {str(r['lidar']):>8}  lsd {e_l[0]:6.3f} deg {e_l[1] * 100:5.1f} cm   auto ({r['chosen']:>9}) {e_c[0]:6.3f} deg {e_c[1] * 100:5.1f} cm", flush=True)
+            row = rows.setdefault(fam, {"scenes": 0, "lsd_good": 0, "auto_good": 0, "lsd_bad": 0, "auto_bad": 0})
+            row["scenes"] += 1
+            row["lsd_good"] += good(e_l)
+            row["auto_good"] += good(e_c)
+            row["lsd_bad"] += bad(e_l)
+            row["auto_bad"] += bad(e_c)
+    print("| family | scenes | within 0.1 deg / 2 cm: lsd / auto | beyond 0.2 deg / 5 cm: lsd / auto |\n|---|---|---|---|")
+    for fam, r in rows.items():
+        print(f"| {fam} seeds {first}-{first + n - 1} | {r['scenes']} | {r['lsd_good']} / {r['auto_good']} | {r['lsd_bad']} / {r['auto_bad']} |")
+    return rows
 
 
 def _error_params(T_est, T_true) -> np.ndarray:
@@ -400,7 +464,7 @@ def _error_params(T_est, T_true) -> np.ndarray:
     return np.concatenate([geometry.R_to_rotvec(dT[:3, :3]), dT[:3, 3]])
 
 
-def verdict_sweep(families=("family2", "old"), seeds=range(30), cache: Path = VERDICT_CACHE) -> list[dict]:
+def verdict_sweep(families=("family2", "old"), seeds=range(30), cache: Path = VERDICT_CACHE, image_edges: str = "lsd") -> list[dict]:
     """Run (or reuse from ``cache``, one JSON line per family/seed) the refinement on every scene; the records
     hold the truth errors and the checks the verdict is decided on (``RefineResult.checks``)."""
     from radarcal import geometry
@@ -422,7 +486,7 @@ def verdict_sweep(families=("family2", "old"), seeds=range(30), cache: Path = VE
             if (fam, seed) not in done:
                 t0 = time.perf_counter()
                 s = verdict_scene(fam, seed)
-                res = verdict_run(s)
+                res = verdict_run(s, image_edges)
                 e_deg, e_m = geometry.pose_error(res.T_cam_lidar, s.T_cam_lidar)
                 rec = {"family": fam, "seed": seed, "layout": s.params.get("layout", "structured"), "lidar": s.params.get("lidar"), "err_deg": e_deg, "err_m": e_m,
                        "err_params": _error_params(res.T_cam_lidar, s.T_cam_lidar).tolist(), "converged": res.converged, "message": res.message,
@@ -432,6 +496,15 @@ def verdict_sweep(families=("family2", "old"), seeds=range(30), cache: Path = VE
                 done[(fam, seed)] = rec
                 print(f"  {fam} seed {seed}: {e_deg:.3f} deg / {e_m * 100:.2f} cm, {'converged' if res.converged else 'refused'} ({rec['seconds']:.0f} s)", flush=True)
             out.append(done[(fam, seed)])
+    return out
+
+
+def _good_by(records: list[dict], key: str) -> dict:
+    """{value of ``key``: (scenes, within 0.1 deg / 2 cm)}."""
+    out: dict = {}
+    for r in records:
+        n, g = out.get(r.get(key) or "?", (0, 0))
+        out[r.get(key) or "?"] = (n + 1, g + (r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1]))
     return out
 
 
@@ -454,27 +527,24 @@ def verdict_table(records: list[dict], options=None) -> dict:
         # the verdict as it was when the scene ran (stored "converged"; the standard-deviation bootstrap before this change)
         prev_fr, prev_fa = sum(not r["converged"] for r in good), sum(r["converged"] for r in bad)
         acc_cov = [c for r, c in zip(rs, covered) if acc[id(r)]]
-        by_lidar = {}
-        for r in rs:
-            k = r.get("lidar") or "?"
-            n_ok = by_lidar.get(k, (0, 0))
-            by_lidar[k] = (n_ok[0] + 1, n_ok[1] + (r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1]))
+        by_lidar, by_layout = _good_by(rs, "lidar"), _good_by(rs, "layout")
         rows[fam] = {"scenes": len(rs), "good": len(good), "bad": len(bad), "middle": len(rs) - len(good) - len(bad), "prev_false_refusals": prev_fr,
-                     "prev_false_accepts": prev_fa, "accepted_covered": sum(acc_cov), "by_lidar": by_lidar,
+                     "prev_false_accepts": prev_fa, "accepted_covered": sum(acc_cov), "by_lidar": by_lidar, "by_layout": by_layout,
                      "false_refusals": sum(not acc[id(r)] for r in good), "false_accepts": sum(acc[id(r)] for r in bad),
                      "accepted": sum(acc.values()), "rest_covered": sum(rest), "rest": len(rest), "all_covered": sum(covered)}
     return rows
 
 
-def verdict_report(families=("family2", "old"), n: int = 30, cached_only: bool = False, first: int = 0) -> dict:
+def verdict_report(families=("family2", "old"), n: int = 30, cached_only: bool = False, first: int = 0, image_edges: str = "lsd") -> dict:
     """Runs the sweep (resumable: scenes already in the cache are not re-run) and prints the table; with
     ``cached_only`` only the cached scenes are tabulated (``verdict-table``)."""
-    print(f"\n-- verdict calibration: up to {n} scenes per family (seeds {first}-{first + n - 1}) from 3 deg / 10 cm (CLI defaults; cache {VERDICT_CACHE}) --")
+    cache = _verdict_cache(image_edges)
+    print(f"\n-- verdict calibration: up to {n} scenes per family (seeds {first}-{first + n - 1}) from 3 deg / 10 cm (CLI defaults, --image-edges {image_edges}; cache {cache}) --")
     if cached_only:
-        recs = [json.loads(x) for x in VERDICT_CACHE.read_text().splitlines() if x.strip()] if VERDICT_CACHE.exists() else []
+        recs = [json.loads(x) for x in cache.read_text().splitlines() if x.strip()] if cache.exists() else []
         recs = sorted({(r["family"], r["seed"]): r for r in recs if r["family"] in families and first <= r["seed"] < first + n}.values(), key=lambda r: (families.index(r["family"]), r["seed"]))
     else:
-        recs = verdict_sweep(families, range(first, first + n))
+        recs = verdict_sweep(families, range(first, first + n), cache, image_edges)
     from radarcal.extrinsics.refine import RefineOptions, edge_verdict
 
     rows = verdict_table(recs)
@@ -484,7 +554,8 @@ def verdict_report(families=("family2", "old"), n: int = 30, cached_only: bool =
     for fam, r in rows.items():
         print(f"| {fam} | {r['scenes']} | {r['good']} ({100 * r['good'] / max(r['scenes'], 1):.0f} %) | {r['false_refusals']} ({100 * r['false_refusals'] / max(r['good'], 1):.0f} %); before: {r['prev_false_refusals']} | "
               f"{r['bad']} | {r['false_accepts']}; before: {r['prev_false_accepts']} | {r['middle']} | {r['accepted']} (sigma covers {r['accepted_covered']}) | {r['all_covered']}/{r['scenes']} / {r['rest_covered']}/{r['rest']} |")
-    print("\nwithin 0.1 deg / 2 cm by LiDAR pattern: " + "; ".join(f"{fam}: " + ", ".join(f"{k} {g}/{n}" for k, (n, g) in r["by_lidar"].items()) for fam, r in rows.items()))
+    for what in ("lidar", "layout"):
+        print(f"within 0.1 deg / 2 cm by {what}: " + "; ".join(f"{fam}: " + ", ".join(f"{k} {g}/{n}" for k, (n, g) in sorted(r['by_' + what].items())) for fam, r in rows.items()))
     for rec in recs:
         print(f"  {rec['family']:>8} {rec['seed']:>3} {rec['layout']:>10} {str(rec['lidar']):>8} {rec['err_deg']:7.3f} deg {rec['err_m'] * 100:6.2f} cm  "
               f"{'converged' if edge_verdict(rec['checks'], RefineOptions(coarse_search_deg=6.0, translation_prior_m=0.3))[0] else 'refused':>9}  {rec['seconds']:.0f} s")
@@ -495,8 +566,8 @@ SECTIONS = {"synth": synth_accuracy, "basin": basin, "time": timing, "mlcc": rea
 
 
 def _verdict_args(argv: list[str]) -> dict:
-    """``seeds=100-129`` and ``families=family2,old`` after ``verdict`` / ``verdict-table`` (a fresh seed range for a
-    held-out figure: the scenes looked at while tuning were seeds 0-29)."""
+    """``seeds=100-129``, ``families=family2,old`` and ``edges=auto`` after ``verdict`` / ``verdict-table`` (a fresh
+    seed range for a held-out figure: the scenes looked at while tuning were seeds 0-29)."""
     kw = {}
     for a in argv:
         k, _, v = a.partition("=")
@@ -505,10 +576,15 @@ def _verdict_args(argv: list[str]) -> dict:
             kw["first"], kw["n"] = int(lo), int(hi or lo) - int(lo) + 1
         elif k == "families":
             kw["families"] = tuple(v.split(","))
+        elif k == "edges":
+            kw["image_edges"] = v
     return kw
 
 
 def main(argv: list[str]) -> int:
+    if argv and argv[0] == "edges-choice":
+        edges_choice(**_verdict_args(argv[1:]))
+        return 0
     if argv and argv[0] in ("verdict", "verdict-table"):
         verdict_report(cached_only=argv[0] == "verdict-table", **_verdict_args(argv[1:]))
         return 0

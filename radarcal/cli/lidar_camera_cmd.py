@@ -18,7 +18,7 @@ from radarcal.readout import format_camera_in_lidar
 __all__ = ["lidar_camera"]
 
 LidarEdges = Enum("LidarEdges", {k: k for k in ("planes", "depth", "intensity", "depth+intensity")}, type=str)
-ImageEdges = Enum("ImageEdges", {k: k for k in ("lsd", "canny")}, type=str)
+ImageEdges = Enum("ImageEdges", {k: k for k in ("lsd", "canny", "auto")}, type=str)
 RefineMethod = Enum("RefineMethod", {k: k for k in ("matches", "dense")}, type=str)
 
 
@@ -49,7 +49,7 @@ def lidar_camera(
     refine: bool = typer.Option(False, "--refine", help="Targetless edge-alignment refinement (multi-scene when several pairs)."),
     lidar_edges: LidarEdges = typer.Option("planes", "--lidar-edges", help="planes (plane intersections; dense Livox clouds), depth (range jumps along scan lines), intensity (reflectivity steps along scan lines: lane markings; single spinning sweeps, best with --rotation-only --image-edges canny) or depth+intensity."),
     intensity_edges: bool = typer.Option(True, "--intensity-edges/--no-intensity-edges", help="With --lidar-edges planes: also align reflectivity edges of the dense cloud (paint, markings) when it has intensity."),
-    image_edges: ImageEdges = typer.Option("lsd", "--image-edges", help="lsd (straight segments, less clutter) or canny."),
+    image_edges: ImageEdges = typer.Option("lsd", "--image-edges", help="lsd (straight segments, less clutter), canny, or auto (refine with LSD and with LSD+Canny, keep the pose that aligns better with Canny edges: twice the time; fewer wrong minima on low-contrast 640x512 images, docs/lidar_camera.md)."),
     image_edge_min_px: int = typer.Option(40, "--image-edge-min-px", help="Shortest image edge kept (px); 20 keeps the short lane-marking dashes that --lidar-edges intensity matches."),
     refine_method: RefineMethod = typer.Option("matches", "--refine-method", help="matches (sparse edge matches, default) or dense (LiDAR depth edges scored on the blurred image gradient; cluttered real scenes with few plane-plane edges)."),
     voxel: float = typer.Option(0.5, "--voxel", help="Voxel size (m) for LiDAR plane fitting (0.3-0.5 dense Livox, 1.0 sparse spinning)."),
@@ -117,6 +117,9 @@ def _human(s: dict, bundle: Path) -> None:
     if "refine" in s:
         q = s["refine"]
         typer.echo(f"  edges: {q['message']}")
+        if "image_edges_choice" in s:
+            c = s["image_edges_choice"]
+            typer.echo(f"  image edges: {c['chosen']} kept (alignment cost on Canny edges " + ", ".join(f"{k} {v:.2f}" for k, v in c["canny_alignment_cost_px2"].items()) + " px^2)")
         typer.echo(f"  edge score {q['edge_score_before_px']:.2f} -> {q['edge_score_after_px']:.2f} px; sigma {_sigma_text(q['sigma_rot_deg'], q['sigma_trans_m'], s['rotation_only'])} "
                    f"(lower bound); edge-direction spread {q['observability']['direction_spread']:.2f}")
         typer.echo(f"  block-bootstrap sigma {_sigma_text(q['sigma_bootstrap_rot_deg'], q['sigma_bootstrap_trans_m'], s['rotation_only'])} (edge stretches resampled, equally good restarts, a shared-bias floor)")

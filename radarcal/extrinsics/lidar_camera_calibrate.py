@@ -32,7 +32,7 @@ class LidarCameraOptions:
     refine_method: str = "matches"  # matches | dense
     lidar_edges: str = "planes"  # planes | depth | intensity | depth+intensity
     intensity_edges: bool = True
-    image_edges: str = "lsd"  # lsd | canny
+    image_edges: str = "lsd"  # lsd | canny | auto (LSD and LSD+Canny refined, the better on Canny edges kept)
     image_edge_min_px: int = 40
     voxel: float = 0.5
     search_deg: float = 6.0
@@ -221,12 +221,14 @@ def _manual(inp: LidarCameraInputs, o: LidarCameraOptions, res: LidarCameraResul
     s.pnp_p_lidar, s.pnp_uv, s.pnp_residuals_uv, s.pnp_flagged, s.T_pnp = P, U, sol.residuals_uv, sol.outliers, sol.T_cam_lidar
 
 
-def _edge_scenes(inp: LidarCameraInputs, o: LidarCameraOptions, T: np.ndarray, info: dict) -> list:
-    """One EdgeScene per image/cloud pair: LiDAR edges (planes [+ reflectivity] or scan-line steps) and image edges."""
+def _edge_scenes(inp: LidarCameraInputs, o: LidarCameraOptions, T: np.ndarray, info: dict, methods: tuple[str, ...] | None = None) -> dict:
+    """{image-edge method: one EdgeScene per image/cloud pair}: the same LiDAR edges (planes [+ reflectivity] or
+    scan-line steps) with the image edges of each method (default: ``o.image_edges`` alone)."""
     from radarcal.extrinsics.edges import crop_to_camera, image_edges, lidar_edges, lidar_intensity_edges, lidar_scan_edges, merge_edges
     from radarcal.extrinsics.refine import EdgeScene
 
-    scenes = []
+    methods = methods or (o.image_edges,)
+    scenes: dict = {m: [] for m in methods}
     for p, im, c in zip(inp.cloud_paths, inp.images, inp.clouds):
         view = crop_to_camera(c.points, inp.camera, T, margin=0.3)  # a spinning sweep is mostly out of view
         pts = c.points[view]
@@ -241,23 +243,32 @@ def _edge_scenes(inp: LidarCameraInputs, o: LidarCameraOptions, T: np.ndarray, i
         if len(le.points) < 30:
             advice = f"try --voxel {o.voxel * 2:g}" if o.lidar_edges == "planes" else "a single sweep has few reflectivity steps in view: give more --image/--cloud scenes"
             info["warnings"].append(f"{p}: only {len(le.points)} LiDAR edge samples ({advice})")
-        scenes.append(EdgeScene(inp.camera, le, image_edges(im, min_length=o.image_edge_min_px, method=o.image_edges)))
+        for m in methods:
+            scenes[m].append(EdgeScene(inp.camera, le, image_edges(im, min_length=o.image_edge_min_px, method=m)))
     return scenes
 
 
 def _refine_matches(inp: LidarCameraInputs, o: LidarCameraOptions, res: LidarCameraResult, status) -> None:
     """Sparse edge matches (``--refine-method matches``): all pairs share one T."""
-    from radarcal.extrinsics.refine import PARAM_NAMES, RefineOptions, refine_edges
+    from radarcal.extrinsics.refine import PARAM_NAMES, RefineOptions, refine_edges, refine_edges_choosing
 
+    auto = o.image_edges == "auto"
     with status("extracting edges"):
-        scenes = _edge_scenes(inp, o, res.T_cam_lidar, res.info)
+        cand = _edge_scenes(inp, o, res.T_cam_lidar, res.info, ("lsd", "lsd+canny", "canny") if auto else None)
     opts = RefineOptions(coarse_search_deg=o.search_deg, translation_prior_m=o.trans_prior, fix_translation=o.rotation_only)
     if "intensity" in o.lidar_edges:
         # tens of reflectivity edges per sweep, not thousands: verdict thresholds measured on opencalib_road_64beam
         # (right results matched 22-36 % of the samples in view, wrong minima 13-19 %)
         opts.min_matches, opts.min_match_fraction = 20, 0.2
-    with status("refining"):
-        r = refine_edges(scenes, res.T_cam_lidar, opts)
+    with status("refining" + (" (LSD and LSD+Canny image edges)" if auto else "")):
+        if auto:  # the better pose on Canny edges (every image edge) wins: docs/lidar_camera.md "image edges per scene"
+            referee = cand.pop("canny")
+            chosen, results, costs = refine_edges_choosing(cand, referee, res.T_cam_lidar, opts)
+            r, scenes = results[chosen], cand[chosen]
+            res.info["image_edges_choice"] = {"chosen": chosen, "canny_alignment_cost_px2": costs}
+        else:
+            scenes = cand[o.image_edges]
+            r = refine_edges(scenes, res.T_cam_lidar, opts)
     res.converged, res.T_cam_lidar = r.converged, r.T_cam_lidar
     res.method.append("edge-alignment")
     res.info["warnings"] += r.warnings
@@ -292,7 +303,7 @@ def _refine_dense(inp: LidarCameraInputs, o: LidarCameraOptions, res: LidarCamer
             pts = c.points[crop_to_camera(c.points, cam, T, margin=0.3)].astype(float)
             pts = pts[np.linalg.norm(pts, axis=1) < o.max_range]
             scenes.append(DenseScene(cam, pts, image_energy(im)))
-            yard.append((lidar_edges(pts, voxel=o.voxel, max_range=o.max_range), image_edges(im, method=o.image_edges)))
+            yard.append((lidar_edges(pts, voxel=o.voxel, max_range=o.max_range), image_edges(im, method="lsd" if o.image_edges == "auto" else o.image_edges)))
         r = refine_dense(scenes, T, DenseOptions(coarse_search_deg=min(o.search_deg, 4.0), fix_translation=o.rotation_only, max_range_m=o.max_range))
 
     def yardstick(Tx):

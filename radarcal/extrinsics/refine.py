@@ -26,7 +26,7 @@ from radarcal.camera import Camera
 from radarcal.extrinsics.edges import ImageEdges, LidarEdges, edge_score
 from radarcal.extrinsics.pose_params import PARAM_NAMES, parameter_profiles  # re-exported: the one definition is there
 
-__all__ = ["EdgeScene", "RefineOptions", "RefineResult", "refine_edges", "coarse_rotation_search", "match_edges", "block_bootstrap_sigma",
+__all__ = ["EdgeScene", "RefineOptions", "RefineResult", "refine_edges", "refine_edges_choosing", "coarse_rotation_search", "match_edges", "block_bootstrap_sigma",
            "cost_profiles", "parameter_profiles", "PARAM_NAMES", "edge_verdict", "sigma_for_verdict"]
 
 
@@ -377,6 +377,20 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     prof = cost_profiles(scenes, T, matches, o.loss_scale_px)
     return RefineResult(T, T0, bool(ok), msg, rms, mean_abs, n_match, int(inl.sum()), sigma, score_before, score_after, obs, warnings, history,
                         _match_arrays(scenes, T, matches), residuals_before, r_after, prof, sigma_boot, checks)
+
+
+def refine_edges_choosing(candidates: dict[str, list[EdgeScene]], referee: list[EdgeScene], T_init: np.ndarray,
+                          options: RefineOptions | None = None) -> tuple[str, dict[str, RefineResult], dict[str, float]]:
+    """Refine once per candidate image-edge set (the same LiDAR edges, e.g. LSD and LSD+Canny) and keep the result
+    whose pose has the lowest truncated alignment cost (px^2) against the ``referee`` edges (Canny chains: every
+    image edge, so a set that missed low-contrast edges cannot win by ignoring them). The costs of the candidates
+    are each measured on their own edges and cannot be compared directly. Returns (name, result, referee cost per
+    candidate)."""
+    o = options or RefineOptions()
+    results = {name: refine_edges(scenes, T_init, o) for name, scenes in candidates.items()}
+    costs = {name: alignment_cost(referee, r.T_cam_lidar, o) for name, r in results.items()}
+    best = min(costs, key=costs.get)
+    return best, results, costs
 
 
 def _start_poses(scenes, T0, o, history) -> list[np.ndarray]:

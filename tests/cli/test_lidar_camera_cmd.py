@@ -88,6 +88,26 @@ def test_not_converged_exits_1_and_stores_nothing(synth_dir, tmp_path, capsys):
     assert (tmp_path / "b.yaml").read_bytes() == before
 
 
+@pytest.mark.slow
+def test_refine_cli_image_edges_auto(synth_dir, tmp_path, capsys):
+    # --image-edges auto refines with LSD and LSD+Canny edges and keeps the pose that aligns better with Canny edges
+    import shutil
+
+    shutil.copy(synth_dir / "bundle.yaml", tmp_path / "b.yaml")
+    capsys.readouterr()
+    rc = main(["lidar-camera", "-b", str(tmp_path / "b.yaml"), "--image", str(synth_dir / "image.png"), "--cloud", str(synth_dir / "cloud.pcd"),
+               "--init", str(synth_dir / "init.json"), "--refine", "--image-edges", "auto", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    choice = out["image_edges_choice"]
+    assert choice["chosen"] in ("lsd", "lsd+canny") and choice["canny_alignment_cost_px2"][choice["chosen"]] == min(choice["canny_alignment_cost_px2"].values())
+    assert rc == 0 and out["stored"]
+    from radarcal.bundle import load_bundle
+
+    T = load_bundle(tmp_path / "b.yaml").T("cam0", "lidar0")
+    deg, m = geometry.pose_error(T, np.array(json.loads((synth_dir / "truth.json").read_text())["T_cam_lidar"]))
+    assert deg < 0.15 and m < 0.03
+
+
 def test_refine_method_dense_cli(synth_dir, tmp_path, capsys):
     import shutil
 
