@@ -214,7 +214,7 @@ class Tracker3D:
     * Measurements carry their own time (the mean firing time of a cluster's points): the track is predicted to it,
       updated, and predicted on to the frame time (motion compensation of late clouds, cause 1)."""
 
-    def __init__(self, accel_sigma: float = 1.5, gate_m: float = 0.8, confirm_hits: int = 2, confirm_box_hits: int = 3, tentative_s: float = 0.5,
+    def __init__(self, accel_sigma: float = 3.0, gate_m: float = 0.8, confirm_hits: int = 2, confirm_box_hits: int = 3, tentative_s: float = 0.5,
                  lost_after_s: float = 0.35, max_coast_s: float = 1.5, vmax: float = 4.5, init_speed_sigma: float = 1.5):  # fmt: skip
         self.q = float(accel_sigma) ** 2
         self.gate_m = float(gate_m)
