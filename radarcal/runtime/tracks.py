@@ -240,13 +240,31 @@ class Tracker3D:
             tr.x, tr.P = _cv_predict(tr.x, tr.P, dt, self.q, self.vmax)
             tr.t = t
 
-    def predicted_xy(self, t: float) -> np.ndarray:
-        """(T,2) track positions extrapolated to ``t`` (states untouched)."""
-        if not self.tracks:
+    def predicted_xy(self, t: float, tracks: list[Track3D] | None = None) -> np.ndarray:
+        """(T,2) positions of ``tracks`` (default: all) extrapolated to ``t`` (states untouched)."""
+        tracks = self.tracks if tracks is None else tracks
+        if not tracks:
             return np.zeros((0, 2))
-        X = np.array([tr.x for tr in self.tracks])
-        dt = np.array([t - tr.t for tr in self.tracks])
+        X = np.array([tr.x for tr in tracks])
+        dt = np.array([t - tr.t for tr in tracks])
         return X[:, :2] + X[:, 2:] * dt[:, None]
+
+    def _assign(self, live: list[Track3D], centre: np.ndarray, sigma: np.ndarray, t: np.ndarray, aerial: np.ndarray,
+                max_gate_m: float = np.inf, penalty: np.ndarray | None = None) -> list[tuple[Track3D, int]]:  # fmt: skip
+        """Hungarian assignment of measurements (K,3 centres, K sigma, K times, K aerial flags) to ``live`` tracks on
+        the distance to their prediction at the mean time, within each track's gate (at most ``max_gate_m``) and of
+        the same kind (aerial or ground); ``penalty`` (T,) is added to a track's costs. Returns (track, index) pairs."""
+        from scipy.optimize import linear_sum_assignment
+
+        if not len(centre) or not live:
+            return []
+        d = np.linalg.norm(self.predicted_xy(float(np.mean(t)), live)[:, None, :] - centre[None, :, :2], axis=2)  # (T,K)
+        gate = np.minimum(np.stack([self._gate(tr, sigma, t) for tr in live]), max_gate_m)
+        air = np.array([tr.aerial for tr in live])
+        bad = (d > gate) | (air[:, None] != aerial[None, :])
+        cost = np.where(bad, 1e6, d if penalty is None else d + penalty[:, None])
+        r, c = linear_sum_assignment(cost)
+        return [(live[i], int(j)) for i, j in zip(r, c) if cost[i, j] < 1e6]
 
     def _update(self, tr: Track3D, xy: np.ndarray, sigma: float, t: float, z: float, source: str) -> None:
         if t < tr.t:  # a measurement older than the state (late cloud after a box fix): apply it at the state time
@@ -284,33 +302,21 @@ class Tracker3D:
                         hulls: list[tuple], t_ref: float) -> list[int]:  # fmt: skip
         """Assign clusters (K,3 centres, K sigma, K times) to tracks; start tentative tracks for the rest. Returns the
         track id per cluster."""
-        from scipy.optimize import linear_sum_assignment
-
         K = len(centre)
         ids = [-1] * K
         if K and self.t0 is None:
             self.t0 = float(np.min(t))
-        live = [tr for tr in self.tracks]
-        if K and live:
-            pred = self.predicted_xy(float(np.mean(t)))
-            d = np.linalg.norm(pred[:, None, :] - centre[None, :, :2], axis=2)  # (T,K)
-            gate = np.stack([self._gate(tr, sigma, t) for tr in live])
-            air = np.array([tr.aerial for tr in live])
-            bad = (d > gate) | (air[:, None] != aerial[None, :])
-            cost = np.where(bad, 1e6, d + np.array([0.0 if tr.state != TENTATIVE else 0.3 for tr in live])[:, None])
-            r, c = linear_sum_assignment(cost)
-            for i, j in zip(r, c):
-                if cost[i, j] >= 1e6:
-                    continue
-                tr = live[i]
-                self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
-                tr.t_lidar = max(tr.t_lidar, float(t[j]))
-                tr.n_lidar += 1
-                tr.extent = 0.7 * tr.extent + 0.3 * extent[j]
-                tr.hull, tr.t_points = hulls[j], float(t_ref)
-                if tr.envelope is not None:
-                    tr.envelope = np.r_[np.minimum(tr.envelope[:2], hulls[j][0][:2]), np.maximum(tr.envelope[2:], hulls[j][1][:2])]
-                ids[j] = tr.id
+        live = list(self.tracks)
+        tentative_penalty = np.array([0.0 if tr.state != TENTATIVE else 0.3 for tr in live])
+        for tr, j in self._assign(live, centre, sigma, t, aerial, penalty=tentative_penalty):
+            self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
+            tr.t_lidar = max(tr.t_lidar, float(t[j]))
+            tr.n_lidar += 1
+            tr.extent = 0.7 * tr.extent + 0.3 * extent[j]
+            tr.hull, tr.t_points = hulls[j], float(t_ref)
+            if tr.envelope is not None:
+                tr.envelope = np.r_[np.minimum(tr.envelope[:2], hulls[j][0][:2]), np.maximum(tr.envelope[2:], hulls[j][1][:2])]
+            ids[j] = tr.id
         for j in range(K):
             if ids[j] < 0:
                 tr = self._new(centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
@@ -327,22 +333,9 @@ class Tracker3D:
         by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``), Hungarian on distance within
         ``sparse_gate_m`` (and the track's own gate): a far robot's 3-7 returns keep its track measured, they never
         start one. Returns the track id per component (-1: none took it)."""
-        from scipy.optimize import linear_sum_assignment
-
         ids = [-1] * len(centre)
         live = [tr for tr in self.tracks if tr.id not in skip and tr.state in (CONFIRMED, LOST) and tr.n_lidar]
-        if not len(centre) or not live:
-            return ids
-        X = np.array([tr.x for tr in live])
-        dt = float(np.mean(t)) - np.array([tr.t for tr in live])
-        d = np.linalg.norm(X[:, None, :2] + X[:, None, 2:] * dt[:, None, None] - centre[None, :, :2], axis=2)
-        gate = np.minimum(np.stack([self._gate(tr, sigma, t) for tr in live]), self.sparse_gate_m)
-        air = np.array([tr.aerial for tr in live])
-        cost = np.where((d > gate) | (air[:, None] != aerial[None, :]), 1e6, d)
-        for i, j in zip(*linear_sum_assignment(cost)):
-            if cost[i, j] >= 1e6:
-                continue
-            tr = live[i]
+        for tr, j in self._assign(live, centre, sigma, t, aerial, max_gate_m=self.sparse_gate_m):
             self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
             tr.t_lidar = max(tr.t_lidar, float(t[j]))
             ids[j] = tr.id
