@@ -7,9 +7,9 @@ import pytest
 
 from radarcal.errors import InputError
 from radarcal.runtime.detector import Detection
-from radarcal.runtime.lidar_first import box_fix_order, fuse_fixes, misread_holder
+from radarcal.runtime.lidar_first import box_fix_order, fuse_fixes, misread_holder, on_other_robot
 from radarcal.runtime.multicam import TickDetector, group_by_time, missing_text, parse_videos
-from radarcal.runtime.pipeline import fuse_by_label
+from radarcal.runtime.pipeline import boxes_in_front, fuse_by_label, no_ground_ray
 from radarcal.runtime.sources import CameraFrame
 from radarcal.runtime.tracks import Tracker3D
 
@@ -127,6 +127,35 @@ def test_two_fixes_of_one_label_the_one_at_its_track_first():
     stray = _fix(0, 1, (3.0, 3.0), 0.07, "red_1")
     out = box_fix_order([far, stray, near], {"blue_7": b7})
     assert out[0] is near and out[1] is far and out[2] is stray
+
+
+def test_a_box_fix_on_another_robot_the_lidar_sees_moves_no_track():
+    """A 5 of the benchmark: blue_2, hidden behind red_1, boxed by the tele with red_1's depth: the fix lies on red_1's
+    LiDAR track, so it must not move blue_2's LiDAR-lost track (two such fixes had moved it 4.4 m there)."""
+    tk = Tracker3D()
+    blue2, red1 = _coasting(tk, (20.05, 3.75), "blue_2"), _coasting(tk, (15.8, 5.95), "red_1", t_lidar=1.0)
+    fix = np.array([15.69, 5.37])  # 0.59 m from red_1's track, 4.4 m from blue_2's
+    assert on_other_robot(tk, blue2, "blue_2", fix, 1.0, 0.6 + 2 * 0.1)
+    assert on_other_robot(tk, None, "blue_2", fix, 1.0, 0.6 + 2 * 0.1)  # no blue_2 track yet: no box-born one there either
+    assert not on_other_robot(tk, blue2, "blue_2", fix, 1.0, 0.5)  # outside the radius: a robot beside red_1
+    assert not on_other_robot(tk, blue2, "red_1", fix, 1.0, 0.8)  # red_1's own fix (handled by its track)
+    red1.t_lidar = 0.5  # the LiDAR lost red_1 too: nothing says the fix is not blue_2
+    assert not on_other_robot(tk, blue2, "blue_2", fix, 1.0, 0.8)
+    red1.t_lidar = 1.0
+    assert not on_other_robot(tk, blue2, "blue_2", np.array([20.2, 3.8]), 1.0, 0.8)  # at blue_2's own track
+    unnamed = _coasting(tk, (10.0, 10.0), None, t_lidar=1.0)  # an unnamed LiDAR track: the box names it (not this rule)
+    assert not on_other_robot(tk, None, "blue_2", unnamed.x[:2] + 0.1, 1.0, 0.8)
+
+
+def test_no_ground_ray_from_a_foot_hidden_by_a_robot_in_front():
+    """A 5: the tele's box of blue_2 [996, 417, 1103, 505] behind blue_1 [949, 428, 1079, 544]: its bottom edge is
+    blue_1's outline, a ground ray from it landed 4.4 m short (on red_1). A box beside it, or in front, keeps it."""
+    boxes = np.array([[996, 417, 1103, 505], [949, 428, 1079, 544], [849, 403, 989, 513], [1200, 400, 1260, 480]], float)
+    front = boxes_in_front(boxes, boxes)
+    assert front.tolist() == [[False, True, False, False], [False] * 4, [False, True, False, False], [False] * 4]  # red_1 ends left of blue_2
+    assert no_ground_ray(boxes, boxes, 0.55).tolist() == [True, False, False, False]
+    # red_1's box overlaps blue_1's too but its bottom centre (919 px) is left of it: the foot is visible
+    assert no_ground_ray(np.array([[800, 300, 860, 330]], float), boxes, 0.55).tolist() == [True]  # flat: a hidden robot's top
 
 
 def test_box_depth_excludes_a_nearer_robot_whose_box_is_not_located():
