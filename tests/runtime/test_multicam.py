@@ -230,3 +230,23 @@ def test_tick_detector_two_workers_keep_tick_order():
     td = TickDetector(recogniser=Rec(), ahead=True, workers=2)
     got = [td(tick).views[0][3][0].label for tick in td.frames(group_by_time({"cam0": frames}))]
     assert got == [f"blue_{k}" for k in range(8)]
+
+
+def test_band_scores_a_robot_whose_only_entry_is_a_prediction_is_not_located_on_the_map():
+    """benchmarks.multicam: 'all' scores the label's entry (one with evidence before a prediction of that label);
+    'sent' only the entries on the referee map — a coasting prediction 2 m off counts in 'all', not in 'sent'."""
+    from radarcal.runtime.evaluation import band_scores
+
+    truth = {"f0": {"robots": [{"label": "blue_1", "p_field": [20.0, 5.0, 0.0], "visible_in": ["cam0"]},
+                               {"label": "blue_2", "p_field": [22.0, 9.0, 0.0], "visible_in": ["cam0"]},
+                               {"label": "red_1", "p_field": [5.0, 5.0, 0.0], "visible_in": ["cam0"]}]}}  # fmt: skip
+    res = [{"frame": "f0", "robots": [{"label": "blue_1", "x": 20.4, "y": 5.0, "source": "predicted"},  # an outranked copy, 0.4 m off
+                                      {"label": "blue_1", "x": 20.1, "y": 5.0, "source": "lidar"},
+                                      {"label": "blue_2", "x": 24.0, "y": 9.0, "source": "predicted"},  # coasting alone, 2 m off
+                                      {"label": "red_1", "x": 5.0, "y": 5.0, "source": "lidar"}]}]  # near: not in the band
+    b = band_scores(res, truth, (0.0, 5.0), 15.0, seen_by="cam0")
+    assert b["robot_frames"] == 2 and b["located"] == 2 and b["located_sent"] == 1
+    assert b["correct_label_pct"] == 50.0 and b["correct_label_sent_pct"] == 50.0
+    assert b["median_sent_m"] == pytest.approx(0.1) and b["p95_sent_m"] == pytest.approx(0.1)
+    assert b["p95_m"] == pytest.approx(0.1 + 0.95 * 1.9)  # blue_1's measured entry (0.1 m), blue_2's prediction (2 m)
+    assert b["twice_pct"] == 100.0 and b["twice_labelled_pct"] == 0.0  # blue_1 twice, once on the map
