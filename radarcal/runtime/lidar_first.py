@@ -241,7 +241,7 @@ class LidarFirst:
             tr = holder.get(label)
             if tr is not None and tf - tr.t_lidar < 0.3:
                 continue  # the LiDAR sees that robot: a box-only fix would only add the box path's errors
-            if on_other_robot(tk, tr, label, pf[:2], tf, self.cfg.exclusion_m + 2.0 * fx["sigma"]):
+            if on_other_robot(tk, tr, label, pf[:2], fx["sigma"], tf, self.cfg.exclusion_m + 2.0 * fx["sigma"]):
                 continue  # its depth is the robot in front, which the LiDAR sees under its own label
             tr = misread_holder(tk, tr if tr is None or tr.id not in fixed else None, label, pf[:2], fx["sigma"], tf, fixed)
             # a LiDAR track where the box puts the robot (its projection missed the box): identity by position
@@ -456,13 +456,16 @@ def misread_holder(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray
     return tr
 
 
-def on_other_robot(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray, t: float, radius_m: float) -> bool:
-    """A box-only fix of ``label`` at field ``xy`` lies within ``radius_m`` (the exclusion radius + 2 sigma of the
-    fix) of a ground track the LiDAR sees now under another label, nearer than ``tr`` (the label's own track): two
-    robots are never that close, so the box's depth (or ground ray) came from that robot standing in front of a
-    hidden one. On family A seed 5 two such tele fixes moved blue_2's LiDAR-lost track 4.4 m onto red_1 and
-    blue_4's 9.5 m onto blue_7."""
+def on_other_robot(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray, sigma: float, t: float, radius_m: float) -> bool:
+    """A box-only fix of ``label`` at field ``xy`` (``sigma`` m) that ``tr`` (the label's own track, None: none) does
+    not gate lies within ``radius_m`` (the exclusion radius + 2 sigma of the fix) of a ground track the LiDAR sees
+    now under another label, nearer than ``tr``: two robots are never that close, so the box's depth (or ground ray)
+    came from that robot standing in front of a hidden one. On family A seed 5 two such tele fixes moved blue_2's
+    LiDAR-lost track 4.4 m onto red_1 and blue_4's 9.5 m onto blue_7. A fix its own track gates goes on (two robots
+    side by side in one LiDAR cluster: the sample replay's blue_1 beside blue_2's track)."""
     own = np.inf if tr is None else float(np.linalg.norm(tr.x[:2] + tr.x[2:] * (t - tr.t) - xy))
+    if own <= float(tk._gate(tr, np.array([sigma]), np.array([t]))[0]) if tr is not None else False:
+        return False
     for o in tk.tracks:
         if o.label in (None, label) or o.aerial or t - o.t_lidar >= 0.3:
             continue

@@ -134,17 +134,20 @@ def test_a_box_fix_on_another_robot_the_lidar_sees_moves_no_track():
     LiDAR track, so it must not move blue_2's LiDAR-lost track (two such fixes had moved it 4.4 m there)."""
     tk = Tracker3D()
     blue2, red1 = _coasting(tk, (20.05, 3.75), "blue_2"), _coasting(tk, (15.8, 5.95), "red_1", t_lidar=1.0)
-    fix = np.array([15.69, 5.37])  # 0.59 m from red_1's track, 4.4 m from blue_2's
-    assert on_other_robot(tk, blue2, "blue_2", fix, 1.0, 0.6 + 2 * 0.1)
-    assert on_other_robot(tk, None, "blue_2", fix, 1.0, 0.6 + 2 * 0.1)  # no blue_2 track yet: no box-born one there either
-    assert not on_other_robot(tk, blue2, "blue_2", fix, 1.0, 0.5)  # outside the radius: a robot beside red_1
-    assert not on_other_robot(tk, blue2, "red_1", fix, 1.0, 0.8)  # red_1's own fix (handled by its track)
+    fix, s = np.array([15.69, 5.37]), 0.1  # 0.59 m from red_1's track, 4.4 m from blue_2's (outside its gate)
+    assert on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.6 + 2 * s)
+    assert on_other_robot(tk, None, "blue_2", fix, s, 1.0, 0.6 + 2 * s)  # no blue_2 track yet: no box-born one there either
+    assert not on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.5)  # outside the radius: a robot beside red_1
+    assert not on_other_robot(tk, blue2, "red_1", fix, s, 1.0, 0.8)  # red_1's own fix (handled by its track)
     red1.t_lidar = 0.5  # the LiDAR lost red_1 too: nothing says the fix is not blue_2
-    assert not on_other_robot(tk, blue2, "blue_2", fix, 1.0, 0.8)
+    assert not on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.8)
     red1.t_lidar = 1.0
-    assert not on_other_robot(tk, blue2, "blue_2", np.array([20.2, 3.8]), 1.0, 0.8)  # at blue_2's own track
+    # blue_2's own track gates the fix: two robots side by side (one LiDAR cluster), the fix is blue_2's
+    near_own = red1.x[:2] + np.array([-0.35, 0.0])
+    blue2.x[:2] = near_own + np.array([0.0, 0.45])
+    assert not on_other_robot(tk, blue2, "blue_2", near_own, s, 1.0, 0.8)
     unnamed = _coasting(tk, (10.0, 10.0), None, t_lidar=1.0)  # an unnamed LiDAR track: the box names it (not this rule)
-    assert not on_other_robot(tk, None, "blue_2", unnamed.x[:2] + 0.1, 1.0, 0.8)
+    assert not on_other_robot(tk, None, "blue_2", unnamed.x[:2] + 0.1, s, 1.0, 0.8)
 
 
 def test_no_ground_ray_from_a_foot_hidden_by_a_robot_in_front():
