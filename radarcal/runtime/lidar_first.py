@@ -461,10 +461,12 @@ def on_other_robot(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray
     not gate lies within ``radius_m`` (the exclusion radius + 2 sigma of the fix) of a ground track the LiDAR sees
     now under another label, nearer than ``tr``: two robots are never that close, so the box's depth (or ground ray)
     came from that robot standing in front of a hidden one. On family A seed 5 two such tele fixes moved blue_2's
-    LiDAR-lost track 4.4 m onto red_1 and blue_4's 9.5 m onto blue_7. A fix its own track gates goes on (two robots
-    side by side in one LiDAR cluster: the sample replay's blue_1 beside blue_2's track)."""
+    LiDAR-lost track 4.4 m onto red_1 and blue_4's 9.5 m onto blue_7. A fix its own track gates goes on when that
+    track has had LiDAR clusters (two robots side by side in one cluster: the sample replay's blue_1 beside blue_2's
+    track); a box-born track's gate does not count, it was made of such fixes (A 4: blue_3 behind blue_2, its box
+    depths 0.8 m short, one robot twice on the map)."""
     own = np.inf if tr is None else float(np.linalg.norm(tr.x[:2] + tr.x[2:] * (t - tr.t) - xy))
-    if own <= float(tk._gate(tr, np.array([sigma]), np.array([t]))[0]) if tr is not None else False:
+    if tr is not None and tr.n_lidar and own <= float(tk._gate(tr, np.array([sigma]), np.array([t]))[0]):
         return False
     for o in tk.tracks:
         if o.label in (None, label) or o.aerial or t - o.t_lidar >= 0.3:

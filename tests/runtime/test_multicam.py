@@ -142,10 +142,13 @@ def test_a_box_fix_on_another_robot_the_lidar_sees_moves_no_track():
     red1.t_lidar = 0.5  # the LiDAR lost red_1 too: nothing says the fix is not blue_2
     assert not on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.8)
     red1.t_lidar = 1.0
-    # blue_2's own track gates the fix: two robots side by side (one LiDAR cluster), the fix is blue_2's
+    # blue_2's own LiDAR track gates the fix: two robots side by side (one LiDAR cluster), the fix is blue_2's
     near_own = red1.x[:2] + np.array([-0.35, 0.0])
     blue2.x[:2] = near_own + np.array([0.0, 0.45])
+    blue2.n_lidar = 5
     assert not on_other_robot(tk, blue2, "blue_2", near_own, s, 1.0, 0.8)
+    blue2.n_lidar = 0  # a box-born track (A 4's blue_3 behind blue_2): made of such fixes, its gate says nothing
+    assert on_other_robot(tk, blue2, "blue_2", near_own, s, 1.0, 0.8)
     unnamed = _coasting(tk, (10.0, 10.0), None, t_lidar=1.0)  # an unnamed LiDAR track: the box names it (not this rule)
     assert not on_other_robot(tk, None, "blue_2", unnamed.x[:2] + 0.1, s, 1.0, 0.8)
 
