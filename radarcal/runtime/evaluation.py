@@ -156,13 +156,17 @@ def band_scores(results: Iterable[dict], truth_by_frame: dict[str, dict], origin
     """Scores for the robots at least ``min_range_m`` (horizontal) from ``origin_xy`` (the station's camera), visible
     (to camera ``seen_by`` when the truth has ``visible_in``, issue #19), and for every frame:
 
-    * ``p95_m`` / ``median_m``: horizontal error of the output entry carrying the robot's label (located ones);
+    * ``p95_m`` / ``median_m``: horizontal error of the output entry carrying the robot's label (located ones; an
+      entry with evidence before a ``predicted`` one of the same label);
     * ``correct_label_pct``: robot-frames whose own label is on an entry within ``tol_m``;
+    * the same over the entries sent on the referee map only (labelled, with evidence this frame: not
+      ``predicted``): ``p95_sent_m``, ``median_sent_m``, ``located_sent``, ``correct_label_sent_pct`` — a robot
+      whose only entry is a prediction is not located there;
     * ``twice_pct``: frames in which some true robot (any range) has two output entries within ``tol_m`` that are
       nearer to it than to any other true robot — one robot reported twice; ``twice_labelled_pct``: the same
       counting only labelled entries with evidence this frame (those sent on the referee map)."""
     o = np.asarray(origin_xy, float)[:2]
-    err, n, right, frames, twice, twice_named = [], 0, 0, 0, 0, 0
+    err, err_sent, n, right, right_sent, frames, twice, twice_named = [], [], 0, 0, 0, 0, 0, 0
     for res in results:
         tr = truth_by_frame.get(res["frame"])
         if tr is None:
@@ -172,22 +176,32 @@ def band_scores(results: Iterable[dict], truth_by_frame: dict[str, dict], origin
         T = np.array([r["p_field"][:2] for r in rob], float).reshape(-1, 2)
         O = np.array([[x["x"], x["y"]] for x in res["robots"]], float).reshape(-1, 2)
         D = np.linalg.norm(O[:, None] - T[None], axis=2) if len(O) and len(T) else np.full((len(O), len(T)), np.inf)
+        sent = np.array([x.get("label") is not None and x.get("source") != "predicted" for x in res["robots"]], bool)  # what the referee map gets
         if len(O) and len(T):
             own = (D <= tol_m) & (D == D.min(axis=1, keepdims=True))
             twice += bool((own.sum(axis=0) >= 2).any())
-            sent = np.array([x.get("label") is not None and x.get("source") != "predicted" for x in res["robots"]])  # what the referee map gets
             twice_named += bool((own[sent].sum(axis=0) >= 2).any())
-        labels = [x.get("label") for x in res["robots"]]
+        entry: dict[str, int] = {}  # label -> index of its entry, one with evidence first
+        for i in sorted(range(len(O)), key=lambda i: not sent[i]):
+            entry.setdefault(res["robots"][i].get("label"), i)
         for k, r in enumerate(rob):
             seen = (seen_by in r["visible_in"]) if (seen_by is not None and "visible_in" in r) else r.get("visible", True)
             if not seen or np.linalg.norm(T[k] - o) < min_range_m:
                 continue
             n += 1
-            i = next((i for i, lab in enumerate(labels) if lab == r["label"]), None)
+            i = entry.get(r["label"])
             if i is not None:
                 err.append(float(D[i, k]))
                 right += D[i, k] <= tol_m
-    e = np.asarray(err)
+                if sent[i]:
+                    err_sent.append(float(D[i, k]))
+                    right_sent += D[i, k] <= tol_m
+    e, es = np.asarray(err), np.asarray(err_sent)
+
+    def pct(a, b):
+        return 100.0 * a / b if b else None
+
     return {"robot_frames": n, "located": len(e), "median_m": float(np.median(e)) if len(e) else None, "p95_m": float(np.percentile(e, 95)) if len(e) else None,
-            "correct_label_pct": 100.0 * right / n if n else None, "twice_pct": 100.0 * twice / frames if frames else None,
-            "twice_labelled_pct": 100.0 * twice_named / frames if frames else None, "frames": frames}  # fmt: skip
+            "correct_label_pct": pct(right, n), "located_sent": len(es), "median_sent_m": float(np.median(es)) if len(es) else None,
+            "p95_sent_m": float(np.percentile(es, 95)) if len(es) else None, "correct_label_sent_pct": pct(right_sent, n),
+            "twice_pct": pct(twice, frames), "twice_labelled_pct": pct(twice_named, frames), "frames": frames}  # fmt: skip

@@ -128,6 +128,26 @@ def _number_of(label: str | None) -> int | None:
     return int(tail) if tail.isdigit() else None
 
 
+def boxes_in_front(boxes: np.ndarray, frame_boxes: np.ndarray) -> np.ndarray:
+    """(K, M) bool: box m of the camera frame (pixels xyxy) overlaps box k and its bottom edge is lower (> 2 px) in
+    the image — a robot standing nearer, whose pixels hide part of box k."""
+    b, f = np.asarray(boxes, float).reshape(-1, 1, 4), np.asarray(frame_boxes, float).reshape(1, -1, 4)
+    return (f[..., 3] > b[..., 3] + 2) & (f[..., 0] < b[..., 2]) & (f[..., 2] > b[..., 0]) & (f[..., 1] < b[..., 3]) & (f[..., 3] > b[..., 1])
+
+
+def no_ground_ray(boxes: np.ndarray, frame_boxes: np.ndarray, min_aspect: float) -> np.ndarray:
+    """(K,) bool: boxes whose bottom edge is not the robot's foot point, so a ground ray from it lands elsewhere:
+    much wider than high (``height < min_aspect * width``: the top of a robot hidden below), or with the bottom
+    centre inside the box of a robot in front (the edge is that robot's outline: family A seed 5, the tele's box of
+    blue_2 behind blue_1 put it 4.4 m short, on red_1)."""
+    b = np.asarray(boxes, float).reshape(-1, 4)
+    flat = (b[:, 3] - b[:, 1]) < min_aspect * (b[:, 2] - b[:, 0])
+    f = np.asarray(frame_boxes, float).reshape(-1, 4)
+    cx = 0.5 * (b[:, 0] + b[:, 2])
+    foot = boxes_in_front(b, f) & (f[None, :, 0] <= cx[:, None]) & (cx[:, None] <= f[None, :, 2])
+    return flat | foot.any(axis=1)
+
+
 class Pipeline:
     """Per-frame core: clouds in, detections in, located + tracked robots out."""
 
@@ -223,10 +243,10 @@ class Pipeline:
             return depth, dsig
         queue.expire(t)
         fb = boxes if frame_boxes is None else np.asarray(frame_boxes, float).reshape(-1, 4)
+        fronts = boxes_in_front(boxes, fb)
         for i in range(len(boxes)):
-            b = boxes[i]
-            front = (fb[:, 3] > b[3] + 2) & (fb[:, 0] < b[2]) & (fb[:, 2] > b[0]) & (fb[:, 1] < b[3]) & (fb[:, 3] > b[1])
-            bd = queue.depth_in_box(b, t, max_age_s=self.cfg.depth_max_age_s, exclude=fb[front] if front.any() else None)
+            front = fronts[i]
+            bd = queue.depth_in_box(boxes[i], t, max_age_s=self.cfg.depth_max_age_s, exclude=fb[front] if front.any() else None)
             if bd is not None:
                 depth[i], dsig[i] = bd.depth, bd.sigma
         return depth, dsig
@@ -261,10 +281,7 @@ class Pipeline:
             b = boxes[idx]
             depth, dsig = self._box_depths(b, t, frame_boxes=boxes)
             loc = self.localiser.locate(b, depth, dsig)
-            # a box much wider than high is the visible top of a robot hidden below: its bottom edge is not the
-            # robot's foot point, so no ground ray from it
-            flat = (b[:, 3] - b[:, 1]) < self.cfg.ground_min_aspect * (b[:, 2] - b[:, 0])
-            loc.source[flat & (loc.source == "ground")] = "none"
+            loc.source[no_ground_ray(b, boxes, self.cfg.ground_min_aspect) & (loc.source == "ground")] = "none"
             for n, j in enumerate(idx):
                 fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
             return loc.p_field, loc.sigma, loc.source
@@ -330,8 +347,7 @@ class Pipeline:
             b = boxes[idx]
             depth, dsig = self._box_depths(b, t, view.queue, boxes)
             loc = view.localiser.locate(b, depth, dsig)
-            flat = (b[:, 3] - b[:, 1]) < self.cfg.ground_min_aspect * (b[:, 2] - b[:, 0])  # a hidden robot's top: no ground ray
-            loc.source[flat & (loc.source == "ground")] = "none"
+            loc.source[no_ground_ray(b, boxes, self.cfg.ground_min_aspect) & (loc.source == "ground")] = "none"
             for n, j in enumerate(idx):
                 fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
             return loc.p_field, loc.sigma, loc.source

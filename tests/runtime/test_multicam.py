@@ -7,9 +7,9 @@ import pytest
 
 from radarcal.errors import InputError
 from radarcal.runtime.detector import Detection
-from radarcal.runtime.lidar_first import box_fix_order, fuse_fixes, misread_holder
+from radarcal.runtime.lidar_first import box_fix_order, fuse_fixes, misread_holder, on_other_robot
 from radarcal.runtime.multicam import TickDetector, group_by_time, missing_text, parse_videos
-from radarcal.runtime.pipeline import fuse_by_label
+from radarcal.runtime.pipeline import boxes_in_front, fuse_by_label, no_ground_ray
 from radarcal.runtime.sources import CameraFrame
 from radarcal.runtime.tracks import Tracker3D
 
@@ -129,6 +129,41 @@ def test_two_fixes_of_one_label_the_one_at_its_track_first():
     assert out[0] is near and out[1] is far and out[2] is stray
 
 
+def test_a_box_fix_on_another_robot_the_lidar_sees_moves_no_track():
+    """A 5 of the benchmark: blue_2, hidden behind red_1, boxed by the tele with red_1's depth: the fix lies on red_1's
+    LiDAR track, so it must not move blue_2's LiDAR-lost track (two such fixes had moved it 4.4 m there)."""
+    tk = Tracker3D()
+    blue2, red1 = _coasting(tk, (20.05, 3.75), "blue_2"), _coasting(tk, (15.8, 5.95), "red_1", t_lidar=1.0)
+    fix, s = np.array([15.69, 5.37]), 0.1  # 0.59 m from red_1's track, 4.4 m from blue_2's (outside its gate)
+    assert on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.6 + 2 * s)
+    assert on_other_robot(tk, None, "blue_2", fix, s, 1.0, 0.6 + 2 * s)  # no blue_2 track yet: no box-born one there either
+    assert not on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.5)  # outside the radius: a robot beside red_1
+    assert not on_other_robot(tk, blue2, "red_1", fix, s, 1.0, 0.8)  # red_1's own fix (handled by its track)
+    red1.t_lidar = 0.5  # the LiDAR lost red_1 too: nothing says the fix is not blue_2
+    assert not on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.8)
+    red1.t_lidar = 1.0
+    # blue_2's own LiDAR track gates the fix: two robots side by side (one LiDAR cluster), the fix is blue_2's
+    near_own = red1.x[:2] + np.array([-0.35, 0.0])
+    blue2.x[:2] = near_own + np.array([0.0, 0.45])
+    blue2.n_lidar = 5
+    assert not on_other_robot(tk, blue2, "blue_2", near_own, s, 1.0, 0.8)
+    blue2.n_lidar = 0  # a box-born track (A 4's blue_3 behind blue_2): made of such fixes, its gate says nothing
+    assert on_other_robot(tk, blue2, "blue_2", near_own, s, 1.0, 0.8)
+    unnamed = _coasting(tk, (10.0, 10.0), None, t_lidar=1.0)  # an unnamed LiDAR track: the box names it (not this rule)
+    assert not on_other_robot(tk, None, "blue_2", unnamed.x[:2] + 0.1, s, 1.0, 0.8)
+
+
+def test_no_ground_ray_from_a_foot_hidden_by_a_robot_in_front():
+    """A 5: the tele's box of blue_2 [996, 417, 1103, 505] behind blue_1 [949, 428, 1079, 544]: its bottom edge is
+    blue_1's outline, a ground ray from it landed 4.4 m short (on red_1). A box beside it, or in front, keeps it."""
+    boxes = np.array([[996, 417, 1103, 505], [949, 428, 1079, 544], [849, 403, 989, 513], [1200, 400, 1260, 480]], float)
+    front = boxes_in_front(boxes, boxes)
+    assert front.tolist() == [[False, True, False, False], [False] * 4, [False, True, False, False], [False] * 4]  # red_1 ends left of blue_2
+    assert no_ground_ray(boxes, boxes, 0.55).tolist() == [True, False, False, False]
+    # red_1's box overlaps blue_1's too but its bottom centre (919 px) is left of it: the foot is visible
+    assert no_ground_ray(np.array([[800, 300, 860, 330]], float), boxes, 0.55).tolist() == [True]  # flat: a hidden robot's top
+
+
 def test_box_depth_excludes_a_nearer_robot_whose_box_is_not_located():
     """B11 of the benchmark: a robot half hidden behind a nearer one whose box a LiDAR track explains (so only the
     far box is located) took the near robot's depth; every box of the frame must count as an occluder."""
@@ -201,3 +236,23 @@ def test_tick_detector_two_workers_keep_tick_order():
     td = TickDetector(recogniser=Rec(), ahead=True, workers=2)
     got = [td(tick).views[0][3][0].label for tick in td.frames(group_by_time({"cam0": frames}))]
     assert got == [f"blue_{k}" for k in range(8)]
+
+
+def test_band_scores_a_robot_whose_only_entry_is_a_prediction_is_not_located_on_the_map():
+    """benchmarks.multicam: 'all' scores the label's entry (one with evidence before a prediction of that label);
+    'sent' only the entries on the referee map — a coasting prediction 2 m off counts in 'all', not in 'sent'."""
+    from radarcal.runtime.evaluation import band_scores
+
+    truth = {"f0": {"robots": [{"label": "blue_1", "p_field": [20.0, 5.0, 0.0], "visible_in": ["cam0"]},
+                               {"label": "blue_2", "p_field": [22.0, 9.0, 0.0], "visible_in": ["cam0"]},
+                               {"label": "red_1", "p_field": [5.0, 5.0, 0.0], "visible_in": ["cam0"]}]}}  # fmt: skip
+    res = [{"frame": "f0", "robots": [{"label": "blue_1", "x": 20.4, "y": 5.0, "source": "predicted"},  # an outranked copy, 0.4 m off
+                                      {"label": "blue_1", "x": 20.1, "y": 5.0, "source": "lidar"},
+                                      {"label": "blue_2", "x": 24.0, "y": 9.0, "source": "predicted"},  # coasting alone, 2 m off
+                                      {"label": "red_1", "x": 5.0, "y": 5.0, "source": "lidar"}]}]  # near: not in the band
+    b = band_scores(res, truth, (0.0, 5.0), 15.0, seen_by="cam0")
+    assert b["robot_frames"] == 2 and b["located"] == 2 and b["located_sent"] == 1
+    assert b["correct_label_pct"] == 50.0 and b["correct_label_sent_pct"] == 50.0
+    assert b["median_sent_m"] == pytest.approx(0.1) and b["p95_sent_m"] == pytest.approx(0.1)
+    assert b["p95_m"] == pytest.approx(0.1 + 0.95 * 1.9)  # blue_1's measured entry (0.1 m), blue_2's prediction (2 m)
+    assert b["twice_pct"] == 100.0 and b["twice_labelled_pct"] == 0.0  # blue_1 twice, once on the map
