@@ -129,17 +129,25 @@ class Fit2D:
     model: str  # "planar" | "slant" | "slant+height"
     jac: np.ndarray | None = None  # (2N, p) Jacobian of the prediction at the solution
 
-    def deletion_residuals(self) -> np.ndarray:
-        """Leave-one-out residual lengths from one fit (leverage formula ``(I - H_ii)^-1 r_i`` per 2x2 block; exact
-        for a linear model, first order for this one)."""
+    def leverage(self) -> np.ndarray:
+        """(N,2,2) diagonal blocks ``H_ii`` of the hat matrix ``J (J^T J)^-1 J^T`` (weighted coordinates): how much
+        correspondence i pulls the fit onto itself (NaN when the Jacobian is singular)."""
         J = self.jac
         n = len(self.residuals)
         try:
             A = np.linalg.inv(J.T @ J)
         except np.linalg.LinAlgError:
-            return np.full(n, np.nan)
+            return np.full((n, 2, 2), np.nan)
         Jb = J.reshape(n, 2, -1)
-        H = np.einsum("nip,pq,njq->nij", Jb, A, Jb)
+        return np.einsum("nip,pq,njq->nij", Jb, A, Jb)
+
+    def deletion_residuals(self) -> np.ndarray:
+        """Leave-one-out residual lengths from one fit (leverage formula ``(I - H_ii)^-1 r_i`` per 2x2 block; exact
+        for a linear model, first order for this one)."""
+        n = len(self.residuals)
+        H = self.leverage()
+        if not np.isfinite(H).all():
+            return np.full(n, np.nan)
         M = np.eye(2)[None] - H
         ok = np.abs(np.linalg.det(M)) > 1e-12
         out = np.full(n, np.inf)

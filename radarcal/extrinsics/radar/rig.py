@@ -58,7 +58,7 @@ from radarcal.extrinsics.radar.reflectors import (
 )
 from radarcal.extrinsics.radar.validation import leave_one_out, reject_outliers
 
-K_SIGMA = 3.0  # outlier rule: a hold-out residual (at unit weight) beyond this many times the others' RMS (4 before issue 18)
+K_SIGMA = 3.0  # outlier rule: a studentised hold-out residual beyond this many sigma of the others' fit (4x their RMS before issue 18)
 
 __all__ = ["RadarResult", "RigCalibration", "SceneObs", "build_scene_obs", "calibrate_rig"]
 
