@@ -93,11 +93,12 @@ def deslant(m: np.ndarray, dz: np.ndarray | float) -> np.ndarray:
     return m * scale[:, None]
 
 
-def multipath_of(m: np.ndarray, q: np.ndarray, z: np.ndarray, height: float, gate: float) -> np.ndarray:
+def multipath_of(m: np.ndarray, q: np.ndarray, z: np.ndarray, height: float, gate: float, ghost_only: bool = False) -> np.ndarray:
     """Which reflector's echo path each radar detection ``m`` (M,2, radar frame) lies on: along the bearing of a
     reflector at horizontal position ``q`` (K,2, radar frame) and height ``z`` (K,, above the ground; radar plane at
     ``height``), within ``gate`` across it, and between its direct slant range and that of its ground-mirror image
-    (a ground-bounce multipath ghost: the reflector seen below the ground, ``z -> -z``) widened by ``gate``.
+    (a ground-bounce multipath ghost: the reflector seen below the ground, ``z -> -z``) widened by ``gate``; with
+    ``ghost_only``, within ``gate`` of the mirror image's slant range only (the ghost itself, not the direct echo).
     Returns (M,) the reflector index, -1 for none (the nearest bearing when several)."""
     m = np.asarray(m, float).reshape(-1, 2)
     q = np.asarray(q, float).reshape(-1, 2)
@@ -110,7 +111,7 @@ def multipath_of(m: np.ndarray, q: np.ndarray, z: np.ndarray, height: float, gat
     across = np.abs(m[:, :1] * u[None, :, 1] - m[:, 1:] * u[None, :, 0])
     direct = np.hypot(r, z - height)
     mirror = np.hypot(r, z + height)
-    on = (across < gate) & (along > direct - gate) & (along < mirror + gate)
+    on = (across < gate) & (along > (mirror if ghost_only else direct) - gate) & (along < mirror + gate)
     k = np.argmin(np.where(on, across, np.inf), axis=1)
     return np.where(on.any(axis=1), k, -1)
 
