@@ -155,9 +155,30 @@ class Fit2D:
         out[ok] = np.linalg.norm(np.linalg.solve(M[ok], self.residuals[ok][..., None])[..., 0], axis=1)
         return out
 
+    def inverse_sigma(self) -> dict:
+        """1-sigma of the inverse pose's (theta, a, b) (e.g. the radar's pose in G when the fit maps G -> radar) by
+        first-order propagation of ``cov`` (+ the height's sigma when estimated)."""
+        J = _inverse_jacobian(self.pose)
+        C = J @ self.cov[:3, :3] @ J.T
+        out = {k: float(np.sqrt(max(C[i, i], 0.0))) for i, k in enumerate(["theta", "a", "b"])}
+        if "height" in self.sigma:
+            out["height"] = self.sigma["height"]
+        return out
+
     @property
     def per_point(self) -> np.ndarray:
         return np.linalg.norm(self.residuals, axis=1)
+
+
+def _inverse_jacobian(pose: Pose2) -> np.ndarray:
+    """(3,3) Jacobian of the inverse pose's (theta, a, b) with respect to ``pose``'s (theta, a, b)."""
+    th, t = pose.theta, pose.t
+    dR = np.array([[-np.sin(th), -np.cos(th)], [np.cos(th), -np.sin(th)]])
+    J = np.zeros((3, 3))
+    J[0, 0] = -1.0
+    J[1:, 0] = -dR.T @ t
+    J[1:, 1:] = -rot2(th).T
+    return J
 
 
 def _jac_cov(J: np.ndarray, r: np.ndarray, sigma_meas: float | None) -> np.ndarray:
@@ -261,12 +282,7 @@ def procrustes_floor(src: np.ndarray, sigma: float, pose: Pose2 | None = None, s
         e[k] = 1e-6
         J[:, k] = (pred(x0 + e) - pred(x0 - e)) / 2e-6
     cov = np.linalg.inv(J.T @ J) * sigma**2
-    th, t = pose.theta, pose.t
-    dR = np.array([[-np.sin(th), -np.cos(th)], [np.cos(th), -np.sin(th)]])
-    Ji = np.zeros((3, 3))
-    Ji[0, 0] = -1.0
-    Ji[1:, 0] = -dR.T @ t
-    Ji[1:, 1:] = -rot2(th).T
+    Ji = _inverse_jacobian(pose)
     ci = Ji @ cov @ Ji.T
     return {"yaw_rad": float(np.sqrt(cov[0, 0])), "translation_m": float(np.sqrt(cov[1, 1] + cov[2, 2])),
             "inverse_translation_m": float(np.sqrt(ci[1, 1] + ci[2, 2])), "cov": cov}
