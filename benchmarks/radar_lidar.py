@@ -187,11 +187,13 @@ def lidar_lidar(root) -> dict:
 
 
 # --- sessions with the held-out features (issue 18), through the code path of the command -------------------------
-def ideal_fit_error(ses, radar: str, range_gate: float = 4.0) -> tuple[float, float]:
+def ideal_fit_error(ses, radar: str, range_gate: float = 4.0) -> tuple[float, float, float, float]:
     """(yaw deg, position m) error of the ideal least-squares fit on the same detections: every detection of a true
     reflector (generator labels) that the LiDAR can see (within its ``range_gate``, horizontally) against its true
     apex, slant model at the true mounting height, weighted by the generator's own per-detection sigma (the best
-    linear unbiased estimate)."""
+    linear unbiased estimate); then its own Cramer-Rao sigma of yaw (deg) and position (m, radar in the ground frame)
+    from those sigmas -- what any estimator's error is on average for this session, while the ideal's error is one
+    draw of it."""
     T_v_r = np.array(ses.truth["T_vehicle_sensor"][radar])
     main_xy = np.array(ses.truth["T_vehicle_sensor"][ses.truth["main_lidar"]])[:2, 3]
     src, dst, z, w = [], [], [], []
@@ -205,9 +207,11 @@ def ideal_fit_error(ses, radar: str, range_gate: float = 4.0) -> tuple[float, fl
         sel[sel] = seen[lab[sel]]
         src.append(ap[lab[sel], :2]), z.append(ap[lab[sel], 2]), dst.append(sc["radar"]["xy"][sel]), w.append(1 / sig[sel] ** 2)
     src, dst, z, w = map(np.concatenate, (src, dst, z, w))
-    f = fit_rigid_2d(src, dst, src_z=z, height=ses.truth["radar_mount_height_m"][radar], weights=w / w.mean())
+    f = fit_rigid_2d(src, dst, src_z=z, height=ses.truth["radar_mount_height_m"][radar], weights=w, sigma_meas=1.0)  # w = 1 / sigma^2
     p, t = f.pose.inverse(), Pose2.from_T(T_v_r)
-    return float(np.degrees(abs((p.theta - t.theta + np.pi) % (2 * np.pi) - np.pi))), float(np.linalg.norm(p.t - t.t))
+    crb = f.inverse_sigma()
+    return (float(np.degrees(abs((p.theta - t.theta + np.pi) % (2 * np.pi) - np.pi))), float(np.linalg.norm(p.t - t.t)), float(np.degrees(crb["theta"])),
+            float(np.hypot(crb["a"], crb["b"])))
 
 
 def feature_session(seed: int, family: str, workdir: Path) -> dict:
@@ -226,11 +230,11 @@ def feature_session(seed: int, family: str, workdir: Path) -> dict:
     for r, rr in res.cal.radars.items():
         T_true = np.array(ses.truth["T_main_sensor"][r])
         deg, m = geometry.pose_error(rr.T_lidar_radar, T_true)
-        ideg, im = ideal_fit_error(ses, r)
+        ideg, im, cdeg, cm = ideal_fit_error(ses, r)
         true_G = Pose2.from_T(T_G_main @ T_true)
         err = np.array([(rr.pose_G.theta - true_G.theta + np.pi) % (2 * np.pi) - np.pi, *(rr.pose_G.t - true_G.t)])
         sig = np.array([rr.sigma_G["theta"], rr.sigma_G["a"], rr.sigma_G["b"]])
-        out["radars"][r] = {"deg": deg, "m": m, "ideal_deg": ideg, "ideal_m": im, "z": err / sig}
+        out["radars"][r] = {"deg": deg, "m": m, "ideal_deg": ideg, "ideal_m": im, "crb_deg": cdeg, "crb_m": cm, "z": err / sig}
     for n, d in res.lidars.items():
         deg, m = geometry.pose_error(d["T"], np.array(ses.truth["T_main_sensor"][n]))
         out["lidars"][n] = {"deg": deg, "m": m, "refused": d["refused"], "reflector_pairs": d["refinement"].n_reflectors}
@@ -247,8 +251,13 @@ def feature_benchmark(family: str, seeds, workdir: Path) -> dict:
         def rms(k, rs=rs):
             return float(np.sqrt(np.mean([x[k] ** 2 for x in rs])))
 
+        def per_crb(k, c, rs=rs):  # RMS of the error in units of the session's own Cramer-Rao sigma (~1 for an efficient estimator)
+            return float(np.sqrt(np.mean([(x[k] / x[c]) ** 2 for x in rs])))
+
         radars[name] = {"n": len(rs), "rms_deg": rms("deg"), "ideal_rms_deg": rms("ideal_deg"), "rms_m": rms("m"), "ideal_rms_m": rms("ideal_m"),
-                        "ratio_deg": rms("deg") / rms("ideal_deg"), "ratio_m": rms("m") / rms("ideal_m")}
+                        "ratio_deg": rms("deg") / rms("ideal_deg"), "ratio_m": rms("m") / rms("ideal_m"),
+                        "crb_units_deg": per_crb("deg", "crb_deg"), "ideal_crb_units_deg": per_crb("ideal_deg", "crb_deg"),
+                        "crb_units_m": per_crb("m", "crb_m"), "ideal_crb_units_m": per_crb("ideal_m", "crb_m")}
     z = np.array([x["z"] for r in runs for x in r["radars"].values()])
     lid = [(r["seed"], n, d) for r in runs for n, d in r["lidars"].items()]
     return {"family": family, "runs": runs, "radars": radars, "coverage_3sigma": (np.abs(z) <= 3).mean(axis=0) if len(z) else np.zeros(3),
@@ -259,9 +268,10 @@ def feature_benchmark(family: str, seeds, workdir: Path) -> dict:
 
 def print_feature_benchmark(b: dict) -> None:
     print(f"\nfamily {b['family']!r}: {len(b['runs'])} sessions, seeds {b['runs'][0]['seed']}-{b['runs'][-1]['seed']} (tripod legs, turned reflectors, low-RCS clutter, multipath, ground-and-wall, 2nd LiDAR yawed 70 deg)")
-    print(f"  {'radar':>13} | {'RMS yaw':>8} {'ideal':>7} {'ratio':>5} | {'RMS pos':>8} {'ideal':>7} {'ratio':>5}")
+    print(f"  {'radar':>13} | {'RMS yaw':>8} {'ideal':>7} {'ratio':>5} | {'RMS pos':>8} {'ideal':>7} {'ratio':>5} | error / ideal's CRB sigma: yaw (ideal), pos (ideal)")
     for n, d in b["radars"].items():
-        print(f"  {n:>13} | {d['rms_deg']:7.3f}° {d['ideal_rms_deg']:6.3f}° {d['ratio_deg']:5.2f} | {100 * d['rms_m']:6.2f}cm {100 * d['ideal_rms_m']:5.2f}cm {d['ratio_m']:5.2f}")
+        print(f"  {n:>13} | {d['rms_deg']:7.3f}° {d['ideal_rms_deg']:6.3f}° {d['ratio_deg']:5.2f} | {100 * d['rms_m']:6.2f}cm {100 * d['ideal_rms_m']:5.2f}cm {d['ratio_m']:5.2f} | "
+              f"{d['crb_units_deg']:.2f} ({d['ideal_crb_units_deg']:.2f}), {d['crb_units_m']:.2f} ({d['ideal_crb_units_m']:.2f})")
     c = b["coverage_3sigma"]
     print(f"  truth within 3 sigma: yaw {100 * c[0]:.0f} %, x {100 * c[1]:.0f} %, y {100 * c[2]:.0f} % (ground frame)")
     print(f"  second LiDAR: {b['lidar_stored_ok']} stored within 0.2 deg / 2 cm, {b['lidar_refused']} refused, {b['lidar_stored_wrong']} stored wrong")

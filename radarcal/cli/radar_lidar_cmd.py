@@ -34,7 +34,7 @@ def radar_lidar(
     bundle: BundleOpt = ...,
     model: Model = typer.Option(Model.slant, "--model", help="slant (mounting heights + ground plane) or planar (the patent's: z dropped)."),
     gate: float = typer.Option(0.35, "--gate", help="Matching gate (m) between radar detections and reflectors."),
-    outlier: float = typer.Option(0.15, "--outlier", help="Reject a reflector whose hold-out residual exceeds this (m) and 4x the others' scale."),
+    outlier: float = typer.Option(0.15, "--outlier", help="Reject a reflector whose hold-out residual exceeds this (m) and 3 sigma of the others' fit (leverage removed)."),
     joint: bool = typer.Option(True, "--joint/--no-joint", help="Joint refinement of all radars at once."),
     lidar_method: LidarMethod = typer.Option(LidarMethod.gicp, "--lidar-method", help="LiDAR-LiDAR registration."),
     voxel: float = typer.Option(0.1, "--voxel", help="Finest voxel size (m) of the LiDAR-LiDAR registration."),

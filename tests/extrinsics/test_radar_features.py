@@ -153,7 +153,24 @@ def test_multipath_of_names_the_reflector_on_whose_echo_path_a_detection_lies():
     direct, mirror = np.hypot(3.0, 0.6), np.hypot(3.0, 1.6)
     m = np.array([[direct, 0.0], [mirror, 0.02], [mirror, 0.5], [mirror + 1.0, 0.0], [0.0, mirror]])
     assert multipath_of(m, q, z, 0.5, 0.2).tolist() == [0, 0, -1, -1, 1]
+    assert multipath_of(m, q, z, 0.5, 0.2, ghost_only=True).tolist() == [-1, 0, -1, -1, 1]  # the direct echo is no ghost
     assert multipath_of(np.zeros((0, 2)), q, z, 0.5, 0.2).shape == (0,)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_outlier_rule_keeps_a_far_isolated_reflector_and_finds_a_gross_outlier_behind_it(seed):
+    """Five reflectors within 0.5 m of each other and one 2.5 m away, 2 cm noise: the far one's hold-out residual is
+    large (the others fix the yaw poorly: high leverage), yet it is no outlier and is kept; a detection 40 cm off
+    among the close ones is rejected although the far one's hold-out residual in metres is the largest."""
+    from radarcal.extrinsics.radar import Pose2, reject_outliers
+
+    src = np.array([[2.0, 0.0], [2.2, 0.3], [2.4, -0.2], [2.1, 0.1], [2.3, 0.05], [2.5, 2.5]])
+    dst = Pose2(np.radians(10.0), np.array([0.3, -0.2])).apply(src) + np.random.default_rng(seed).normal(0, 0.02, src.shape)
+    keep, _ = reject_outliers(src, dst, threshold=0.1, k_sigma=3.0)
+    assert keep.all()
+    dst[1] += [0.4, 0.0]
+    keep, why = reject_outliers(src, dst, threshold=0.1, k_sigma=3.0)
+    assert keep.tolist() == [True, False, True, True, True, True] and why[0][0] == 1
 
 
 def test_association_drops_a_much_weaker_detection_beside_a_reflector_even_when_nearer():

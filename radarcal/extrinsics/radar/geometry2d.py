@@ -93,11 +93,12 @@ def deslant(m: np.ndarray, dz: np.ndarray | float) -> np.ndarray:
     return m * scale[:, None]
 
 
-def multipath_of(m: np.ndarray, q: np.ndarray, z: np.ndarray, height: float, gate: float) -> np.ndarray:
+def multipath_of(m: np.ndarray, q: np.ndarray, z: np.ndarray, height: float, gate: float, ghost_only: bool = False) -> np.ndarray:
     """Which reflector's echo path each radar detection ``m`` (M,2, radar frame) lies on: along the bearing of a
     reflector at horizontal position ``q`` (K,2, radar frame) and height ``z`` (K,, above the ground; radar plane at
     ``height``), within ``gate`` across it, and between its direct slant range and that of its ground-mirror image
-    (a ground-bounce multipath ghost: the reflector seen below the ground, ``z -> -z``) widened by ``gate``.
+    (a ground-bounce multipath ghost: the reflector seen below the ground, ``z -> -z``) widened by ``gate``; with
+    ``ghost_only``, within ``gate`` of the mirror image's slant range only (the ghost itself, not the direct echo).
     Returns (M,) the reflector index, -1 for none (the nearest bearing when several)."""
     m = np.asarray(m, float).reshape(-1, 2)
     q = np.asarray(q, float).reshape(-1, 2)
@@ -110,7 +111,7 @@ def multipath_of(m: np.ndarray, q: np.ndarray, z: np.ndarray, height: float, gat
     across = np.abs(m[:, :1] * u[None, :, 1] - m[:, 1:] * u[None, :, 0])
     direct = np.hypot(r, z - height)
     mirror = np.hypot(r, z + height)
-    on = (across < gate) & (along > direct - gate) & (along < mirror + gate)
+    on = (across < gate) & (along > (mirror if ghost_only else direct) - gate) & (along < mirror + gate)
     k = np.argmin(np.where(on, across, np.inf), axis=1)
     return np.where(on.any(axis=1), k, -1)
 
@@ -129,26 +130,55 @@ class Fit2D:
     model: str  # "planar" | "slant" | "slant+height"
     jac: np.ndarray | None = None  # (2N, p) Jacobian of the prediction at the solution
 
-    def deletion_residuals(self) -> np.ndarray:
-        """Leave-one-out residual lengths from one fit (leverage formula ``(I - H_ii)^-1 r_i`` per 2x2 block; exact
-        for a linear model, first order for this one)."""
+    def leverage(self) -> np.ndarray:
+        """(N,2,2) diagonal blocks ``H_ii`` of the hat matrix ``J (J^T J)^-1 J^T`` (weighted coordinates): how much
+        correspondence i pulls the fit onto itself (NaN when the Jacobian is singular)."""
         J = self.jac
         n = len(self.residuals)
         try:
             A = np.linalg.inv(J.T @ J)
         except np.linalg.LinAlgError:
-            return np.full(n, np.nan)
+            return np.full((n, 2, 2), np.nan)
         Jb = J.reshape(n, 2, -1)
-        H = np.einsum("nip,pq,njq->nij", Jb, A, Jb)
+        return np.einsum("nip,pq,njq->nij", Jb, A, Jb)
+
+    def deletion_residuals(self) -> np.ndarray:
+        """Leave-one-out residual lengths from one fit (leverage formula ``(I - H_ii)^-1 r_i`` per 2x2 block; exact
+        for a linear model, first order for this one)."""
+        n = len(self.residuals)
+        H = self.leverage()
+        if not np.isfinite(H).all():
+            return np.full(n, np.nan)
         M = np.eye(2)[None] - H
         ok = np.abs(np.linalg.det(M)) > 1e-12
         out = np.full(n, np.inf)
         out[ok] = np.linalg.norm(np.linalg.solve(M[ok], self.residuals[ok][..., None])[..., 0], axis=1)
         return out
 
+    def inverse_sigma(self) -> dict:
+        """1-sigma of the inverse pose's (theta, a, b) (e.g. the radar's pose in G when the fit maps G -> radar) by
+        first-order propagation of ``cov`` (+ the height's sigma when estimated)."""
+        J = _inverse_jacobian(self.pose)
+        C = J @ self.cov[:3, :3] @ J.T
+        out = {k: float(np.sqrt(max(C[i, i], 0.0))) for i, k in enumerate(["theta", "a", "b"])}
+        if "height" in self.sigma:
+            out["height"] = self.sigma["height"]
+        return out
+
     @property
     def per_point(self) -> np.ndarray:
         return np.linalg.norm(self.residuals, axis=1)
+
+
+def _inverse_jacobian(pose: Pose2) -> np.ndarray:
+    """(3,3) Jacobian of the inverse pose's (theta, a, b) with respect to ``pose``'s (theta, a, b)."""
+    th, t = pose.theta, pose.t
+    dR = np.array([[-np.sin(th), -np.cos(th)], [np.cos(th), -np.sin(th)]])
+    J = np.zeros((3, 3))
+    J[0, 0] = -1.0
+    J[1:, 0] = -dR.T @ t
+    J[1:, 1:] = -rot2(th).T
+    return J
 
 
 def _jac_cov(J: np.ndarray, r: np.ndarray, sigma_meas: float | None) -> np.ndarray:
@@ -252,12 +282,7 @@ def procrustes_floor(src: np.ndarray, sigma: float, pose: Pose2 | None = None, s
         e[k] = 1e-6
         J[:, k] = (pred(x0 + e) - pred(x0 - e)) / 2e-6
     cov = np.linalg.inv(J.T @ J) * sigma**2
-    th, t = pose.theta, pose.t
-    dR = np.array([[-np.sin(th), -np.cos(th)], [np.cos(th), -np.sin(th)]])
-    Ji = np.zeros((3, 3))
-    Ji[0, 0] = -1.0
-    Ji[1:, 0] = -dR.T @ t
-    Ji[1:, 1:] = -rot2(th).T
+    Ji = _inverse_jacobian(pose)
     ci = Ji @ cov @ Ji.T
     return {"yaw_rad": float(np.sqrt(cov[0, 0])), "translation_m": float(np.sqrt(cov[1, 1] + cov[2, 2])),
             "inverse_translation_m": float(np.sqrt(ci[1, 1] + ci[2, 2])), "cov": cov}

@@ -46,7 +46,6 @@ from radarcal.extrinsics.radar.geometry2d import (
     fit_rigid_2d,
     multipath_of,
     pose2_to_T,
-    rot2,
     slant_predict,
 )
 from radarcal.extrinsics.radar.geometry2d import wrap_angle as _wrap
@@ -58,7 +57,7 @@ from radarcal.extrinsics.radar.reflectors import (
 )
 from radarcal.extrinsics.radar.validation import leave_one_out, reject_outliers
 
-K_SIGMA = 3.0  # outlier rule: a hold-out residual (at unit weight) beyond this many times the others' RMS (4 before issue 18)
+K_SIGMA = 3.0  # outlier rule: a studentised hold-out residual beyond this many sigma of the others' fit (4x their RMS before issue 18)
 
 __all__ = ["RadarResult", "RigCalibration", "SceneObs", "build_scene_obs", "calibrate_rig"]
 
@@ -483,23 +482,7 @@ def _radar_result(rig: _Rig, r: str, m: _Matched, pose_G: dict, had_free_points:
     mh = h if h is not None else 0.0
     T_G_radar = pose2_to_T(pose_G[r], mh if slant else 0.0)
     return RadarResult(r, pose_G[r], mh, rig.T_lidar_G @ T_G_radar, f, radar_radar.get(r, {}).get("pose_ref"), per, loo,
-                       [(info[i], why) for i, why in rej], patent_G.get(r), _inverse_sigma(f))
-
-
-def _inverse_sigma(f: Fit2D) -> dict:
-    """Sigma of the inverse pose's (theta, a, b) by first-order propagation of ``f.cov`` (fit maps G -> radar)."""
-    th, t = f.pose.theta, f.pose.t
-    R = rot2(th)
-    dR = np.array([[-np.sin(th), -np.cos(th)], [np.cos(th), -np.sin(th)]])
-    J = np.zeros((3, 3))
-    J[0, 0] = -1.0
-    J[1:, 0] = -dR.T @ t
-    J[1:, 1:] = -R.T
-    C = J @ f.cov[:3, :3] @ J.T
-    out = {k: float(np.sqrt(max(C[i, i], 0.0))) for i, k in enumerate(["theta", "a", "b"])}
-    if "height" in f.sigma:
-        out["height"] = f.sigma["height"]
-    return out
+                       [(info[i], why) for i, why in rej], patent_G.get(r), f.inverse_sigma())
 
 
 def _fit_kw(slant: bool, known_h, h_guess) -> dict:

@@ -15,6 +15,7 @@ import numpy as np
 
 from radarcal import geometry
 from radarcal.errors import InputError
+from radarcal.extrinsics.radar.geometry2d import multipath_of
 from radarcal.extrinsics.radar.reflectors import (
     board_reflector_centres,
     extract_reflectors,
@@ -142,36 +143,38 @@ class RadarLidarResult:
                 "extraction": self.extraction, "ground": {"normal": g[:3, 2], "lidar_height_m": float(-(g[:3, 2] @ g[:3, 3]))}}
 
 
-def _label_detections(cal: RigCalibration, scenes: list, radar_names: list) -> dict:
+def _label_detections(cal: RigCalibration, scenes: list, radar_names: list, gate: float) -> dict:
     """Per scene and radar, what each (frame-averaged) detection was taken for: ``reflector <i>`` (matched, used),
-    ``rejected (reflector <i>)``, ``clutter (low RCS)``, ``multipath ghost of reflector <i>`` (same azimuth, farther,
-    weaker than a matched one), ``ghost`` (nothing else)."""
+    ``rejected (reflector <i>)``, ``multipath ghost of reflector <i>`` (where LiDAR reflector i's ground-bounce ghost
+    falls under the calibrated pose, :func:`multipath_of` -- its bearing, its ground-mirror image's slant range -- and
+    weaker than its matched detection), ``clutter (low RCS)`` (10 dB below the matched ones), ``ghost`` (nothing else)."""
+    T_G_lidar = geometry.invert_T(cal.T_lidar_G)
     out = {}
     for sc in scenes:
         per = {}
+        p_G = geometry.transform_points(T_G_lidar, np.asarray(sc.lidar_centres, float).reshape(-1, 3))
         for r in radar_names:
             m = np.asarray(sc.radar_xy.get(r, np.zeros((0, 2))), float).reshape(-1, 2)
             rc = (sc.radar_rcs or {}).get(r)
             lab = ["ghost"] * len(m)
             res = cal.radars.get(r)
-            matched = {}
-            if res is not None:
-                for p in res.per_reflector:
-                    if p["scene"] == sc.name:
-                        matched[p["radar_index"]] = p["lidar_index"]
-                        lab[p["radar_index"]] = f"reflector {p['lidar_index']}" if p["used"] else f"rejected (reflector {p['lidar_index']})"
+            if res is None:
+                per[r] = lab
+                continue
+            matched = {}  # radar index -> LiDAR index
+            for p in res.per_reflector:
+                if p["scene"] == sc.name:
+                    matched[p["radar_index"]] = p["lidar_index"]
+                    lab[p["radar_index"]] = f"reflector {p['lidar_index']}" if p["used"] else f"rejected (reflector {p['lidar_index']})"
+            rcs_of = {li: rc[j] for j, li in matched.items()} if rc is not None else {}
             ref_rcs = np.nanpercentile(rc[list(matched)], 50) if rc is not None and matched and np.isfinite(rc[list(matched)]).any() else None
-            for j in range(len(m)):
-                if j in matched:
-                    continue
-                az, rr = np.arctan2(m[j, 1], m[j, 0]), np.hypot(*m[j])
-                for i, li in matched.items():  # few
-                    if abs(np.arctan2(m[i, 1], m[i, 0]) - az) < np.radians(4) and 0.05 < rr - np.hypot(*m[i]) < 1.0 and (rc is None or rc[j] < rc[i]):
-                        lab[j] = f"multipath ghost of reflector {li}"
-                        break
-                else:
-                    if ref_rcs is not None and rc[j] < ref_rcs - 10:
-                        lab[j] = "clutter (low RCS)"
+            rest = np.array([j for j in range(len(m)) if j not in matched], int)
+            on = multipath_of(m[rest], res.pose_G.inverse().apply(p_G[:, :2]), p_G[:, 2], res.mount_height, gate, ghost_only=True) if len(rest) else np.zeros(0, int)
+            for j, k in zip(rest, on):  # unmatched detections (few)
+                if k >= 0 and (rc is None or k not in rcs_of or rc[j] < rcs_of[k]):
+                    lab[j] = f"multipath ghost of reflector {k}"
+                elif ref_rcs is not None and rc[j] < ref_rcs - 10:
+                    lab[j] = "clutter (low RCS)"
             per[r] = lab
         out[sc.name] = per
     return out
@@ -252,7 +255,7 @@ def calibrate(inp, options: RadarLidarOptions | None = None, progress=lambda it,
                 if deg > o.max_move_deg or m > o.max_move_m:
                     refusals.append(f"{r}: moved {deg:.1f} deg / {m:.2f} m from its initial_T_main (limit {o.max_move_deg:g} deg / {o.max_move_m:g} m): implausible")
     lidars = _register_lidars(inp, o, lidar_clouds, main_centres, refusals, log)
-    labels = _label_detections(cal, scenes, rig.radars) if cal is not None else {}
+    labels = _label_detections(cal, scenes, rig.radars, o.gate) if cal is not None else {}
     return RadarLidarResult(rig, cal, lidars, scenes, frames, notes, refusals, labels, o, extraction)
 
 

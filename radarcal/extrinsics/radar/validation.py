@@ -39,9 +39,11 @@ def leave_one_out(src: np.ndarray, dst: np.ndarray, **fit_kw) -> dict:
 
 
 def reject_outliers(src: np.ndarray, dst: np.ndarray, threshold: float = 0.15, min_keep: int = 3, k_sigma: float = 4.0, **fit_kw) -> tuple[np.ndarray, list]:
-    """Iteratively drop the correspondence with the largest leave-one-out residual (leverage formula to pick it, an
-    exact refit without it to test it) while that hold-out residual exceeds both ``threshold`` (m) and ``k_sigma``
-    times the RMS residual of the fit without it. Returns (keep mask, [(index, reason)])."""
+    """Iteratively drop the most significant correspondence -- of those whose leave-one-out residual (leverage formula)
+    exceeds ``threshold`` (m), the largest studentised one (weighted, its leverage's variance inflation
+    ``(I - H_jj)^-1`` removed) -- while its exact hold-out residual (a refit without it) stays beyond ``threshold`` and,
+    studentised, beyond ``k_sigma`` (small-sample corrected) times the robust unit-weight sigma of the fit without it.
+    Returns (keep mask, [(index, reason)])."""
     src = np.asarray(src, float).reshape(-1, 2)
     dst = np.asarray(dst, float).reshape(-1, 2)
     keep = np.ones(len(src), bool)
@@ -56,22 +58,48 @@ def reject_outliers(src: np.ndarray, dst: np.ndarray, threshold: float = 0.15, m
         f = fit_rigid_2d(src[idx], dst[idx], src_z=None if zz is None else zz[idx], weights=w[idx], **fit_kw)
         if f.rms <= threshold / k_sigma / 4:
             break  # everything already fits far below the threshold
-        r = f.deletion_residuals()
-        j = int(np.nanargmax(np.where(np.isfinite(r), r, -1)))
+        H = f.leverage()
+        if not np.isfinite(H).all():
+            H = np.zeros_like(H)
+        M = np.eye(2)[None] - H
+        ok = np.abs(np.linalg.det(M)) > 1e-12
+        d = np.zeros((len(idx), 2))
+        d[ok] = np.linalg.solve(M[ok], f.residuals[ok][..., None])[..., 0]  # leave-one-out residuals (leverage formula)
+        # the candidate: the most significant (studentised, weighted) of those beyond ``threshold`` in metres -- not the
+        # largest in metres, which is often a weak echo well within its own noise and would end the search; a point
+        # that alone fixes a direction of the fit (leverage 1) cannot be tested
+        stat = w[idx] * np.einsum("ni,nij,nj->n", d, M, d)
+        cand = ok & (np.linalg.norm(d, axis=1) > threshold)
+        if not cand.any():
+            break
+        j = int(np.argmax(np.where(cand, stat, -1.0)))
         rest = np.delete(idx, j)
         g = fit_rigid_2d(src[rest], dst[rest], src_z=None if zz is None else zz[rest], init=f.pose, weights=w[rest], **fit_kw)
         q = g.pose.apply(src[idx[j]][None])
         pred = q if zz is None else slant_predict(q, zz[idx[j]] - g.height)
-        rj = float(np.linalg.norm(pred[0] - dst[idx[j]]))
+        e = pred[0] - dst[idx[j]]
+        rj = float(np.linalg.norm(e))
         unit = np.sqrt(w[rest]) * np.linalg.norm(g.residuals, axis=1)
         dof = max(2 * len(rest) - n_par, 1)
         # robust unit-weight sigma of the others (median 2D residual length = 1.177 sigma, corrected for the fitted
         # parameters): weak outliers among them must not hide this one (their RMS would)
         scale = float(np.median(unit) / 1.177 * np.sqrt(2 * len(rest) / dof))
-        if rj > threshold and rj * np.sqrt(w[idx[j]]) > k_sigma * scale:
+        # studentised: the others' fit predicts a far, isolated correspondence (high leverage) poorly, so its deletion
+        # residual's variance is sigma^2 / w (I - H_jj)^-1, not sigma^2 / w
+        rj_std = float(np.sqrt(max(w[idx[j]] * e @ M[j] @ e, 0.0)))
+        k_eff = _small_sample_k(k_sigma, dof)
+        if rj > threshold and rj_std > k_eff * scale:
             keep[idx[j]] = False
-            reasons.append((int(idx[j]), f"hold-out residual {rj:.3f} m > {threshold:g} m and > {k_sigma:g}x the others' RMS ({g.rms:.3f} m)"))
+            reasons.append((int(idx[j]), f"hold-out residual {rj:.3f} m > {threshold:g} m and {rj_std / max(scale, 1e-12):.1f} sigma of the others' fit (> {k_eff:.2g}, leverage removed)"))
         else:
             break
     return keep, reasons
 
+
+def _small_sample_k(k_sigma: float, dof: int) -> float:
+    """Threshold on a 2D residual's length in sigma when sigma itself comes from ``dof`` residual degrees of freedom:
+    the same false-rejection rate as ``k_sigma`` with a known sigma (chi-square, 2 dof: ``exp(-k^2/2)``), from
+    ``2 F(2, dof)`` (a few matches estimate sigma poorly: 3 sigma becomes 5.0 at 5 dof, 3.1 at 50)."""
+    from scipy.stats import f as f_dist
+
+    return float(np.sqrt(2.0 * f_dist.isf(np.exp(-k_sigma**2 / 2), 2, max(dof, 1))))
