@@ -228,6 +228,7 @@ class Tracker3D:
         self.reacquire_m = 2.0
         self.coast_damping_s = 0.5
         self.sparse_gate_m = 0.8  # a sparse component farther than this from a track's prediction is not that robot
+        self.sparse_box_s = 0.15  # a track a camera box fixed this recently takes no sparse component (update_sparse)
         self.learn_s = 2.0  # tracks born within this long of the first cluster are static suspects (Track3D.evidence)
         self.t0: float | None = None
         self.tracks: list[Track3D] = []
@@ -330,12 +331,23 @@ class Tracker3D:
 
     def update_sparse(self, centre: np.ndarray, sigma: np.ndarray, t: np.ndarray, aerial: np.ndarray, skip: set[int]) -> list[int]:
         """Sparse components (too few returns or too small for a robot of their own, :attr:`Clusters.sparse`) taken
-        by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``), Hungarian on distance within
-        ``sparse_gate_m`` (and the track's own gate): a far robot's 3-7 returns keep its track measured, they never
-        start one. Returns the track id per component (-1: none took it)."""
+        by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``) and not fixed by a camera box
+        within ``sparse_box_s``: a far robot's 3-7 returns keep its track measured, they never start one. Hungarian
+        on distance within ``sparse_gate_m`` (and the track's own gate) over every track: a component nearest a
+        track that is measured otherwise (a cluster of this cloud, a box fix) or tentative is that robot's and moves
+        nobody. Returns the track id per component (-1: none took it).
+
+        Why not the camera-fixed tracks: a sparse take marks the track seen by the LiDAR (no box-only fix for 0.3 s,
+        its last cluster hull kept for identity), so in a pile-up of robots 1 m apart the box-depth fixes that kept
+        each track on its robot were blocked and boxes matched stale hulls (`synth field` seed 12, docs/runtime.md)."""
         ids = [-1] * len(centre)
-        live = [tr for tr in self.tracks if tr.id not in skip and tr.state in (CONFIRMED, LOST) and tr.n_lidar]
-        for tr, j in self._assign(live, centre, sigma, t, aerial, max_gate_m=self.sparse_gate_m):
+        if not len(centre):
+            return ids
+        tm = float(np.mean(t))
+        takers = {tr.id for tr in self.tracks if tr.id not in skip and tr.state in (CONFIRMED, LOST) and tr.n_lidar and tm - tr.t_box > self.sparse_box_s}
+        for tr, j in self._assign(self.tracks, centre, sigma, t, aerial, max_gate_m=self.sparse_gate_m):
+            if tr.id not in takers:
+                continue
             self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
             tr.t_lidar = max(tr.t_lidar, float(t[j]))
             ids[j] = tr.id
