@@ -83,6 +83,9 @@ class LidarFirst:
         self.filter = StaticFilter(self.T_field_lidar, occ, bg, (inset, inset, L - inset, W - inset),
                                    sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m)  # fmt: skip
         self.tracker = tracker or Tracker3D(accel_sigma=self.cfg.accel_sigma[int(self.cfg.lidar_only)])
+        # without box fixes a far robot seen only by a few returns gets a track from them (with box fixes its box
+        # does: sparse-born tracks there took box-only fixes and labels of other robots, measured: docs/runtime.md)
+        self.tracker.sparse_births = self.cfg.lidar_only
         self.window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(1, self.cfg.window_sweeps))
         self.camera = camera
         self.T_cam_field = invert_T(T_field_cam) if T_field_cam is not None else None
