@@ -177,8 +177,7 @@ class VoxelBackground:
 @dataclass
 class StaticFilter:
     """Field occupancy + crop + learnt background: points (N,3) in the LiDAR frame -> dynamic points in the field
-    frame. Tolerances: ``tol_z = base_tol_m + k_sigma * range_sigma(r)``, ``margin = 0.08 + k_sigma * range_sigma(r)``
-    (``wall_margin``; off: 0.08 m — the wall returns it removes are static, so the learnt background takes them)."""
+    frame. Tolerances: ``tol_z = base_tol_m + k_sigma * range_sigma(r)``, ``margin = 0.08 + k_sigma * range_sigma(r)``."""
 
     T_field_lidar: np.ndarray
     occupancy: FieldOccupancy
@@ -189,7 +188,6 @@ class StaticFilter:
     k_sigma: float = 2.0
     sigma_rot_rad: float = np.deg2rad(0.25)
     sigma_trans_m: float = 0.03
-    wall_margin: bool = True  # the surface max-filtered over the range-dependent margin (LidarFirst: not LiDAR only)
 
     ground_fit: bool = True
     plane: np.ndarray | None = None  # (a, b, c): the flat ground as the cloud sees it, z = a x + b y + c
@@ -230,8 +228,7 @@ class StaticFilter:
             tol = lambda r: base + k * range_sigma(r, 0.1 * self.sigma_rot_rad, 0.0, 0.03)  # noqa: E731
         else:
             tol = lambda r: base + k * range_sigma(r, self.sigma_rot_rad, self.sigma_trans_m)  # noqa: E731
-        k_wall = k if self.wall_margin else 0.0
-        margin = lambda r: 0.08 + k_wall * range_sigma(r, self.sigma_rot_rad, self.sigma_trans_m)  # noqa: E731
+        margin = lambda r: 0.08 + k * range_sigma(r, self.sigma_rot_rad, self.sigma_trans_m)  # noqa: E731
         return tol, margin
 
     def __call__(self, points_lidar: np.ndarray, t: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -80,11 +80,8 @@ class LidarFirst:
         inset = self.cfg.crop_inset_m
         occ = field_occupancy(field_model, (-1.0, -1.0, L + 1.0, W + 1.0))
         bg = VoxelBackground((0.0, 0.0, -0.5, L, W, 3.5), self.cfg.bg_voxel_m, self.cfg.bg_tau_s, self.cfg.bg_hits) if self.cfg.learn_background else None
-        # the wall margin (returns of a raised area's wall moved off it by the calibration) only with box fixes: a
-        # cluster there took the box of the robot behind it; LiDAR only it is static and learnt, and the margin ate
-        # robots beside raised areas (measured: docs/runtime.md)
-        self.filter = StaticFilter(self.T_field_lidar, occ, bg, (inset, inset, L - inset, W - inset), sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg),
-                                   sigma_trans_m=self.cfg.sigma_trans_m, wall_margin=not self.cfg.lidar_only)  # fmt: skip
+        self.filter = StaticFilter(self.T_field_lidar, occ, bg, (inset, inset, L - inset, W - inset),
+                                   sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m)  # fmt: skip
         self.tracker = tracker or Tracker3D(accel_sigma=self.cfg.accel_sigma[int(self.cfg.lidar_only)])
         # without box fixes a far robot seen only by a few returns gets a track from them (with box fixes its box
         # does: sparse-born tracks there took box-only fixes and labels of other robots, measured: docs/runtime.md)
