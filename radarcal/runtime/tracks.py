@@ -346,8 +346,10 @@ class Tracker3D:
         ``sparse_gate_m`` (and the track's own gate) over every track: a component nearest a track that is measured
         otherwise (a cluster of this cloud, a box fix) or tentative is that robot's and moves nobody. With
         ``sparse_births`` (LiDAR only) a component farther than ``sparse_birth_m`` from every track starts a
-        tentative track, which the next sweep's component or cluster confirms; else they never start one. Returns
-        the track id per component (-1: none took it).
+        tentative track, which the next sweep's component or cluster confirms — after the first ``learn_s`` only
+        (before, a few returns of the referee's box and of a far robot look alike, and a static suspect born of
+        sparse returns wandered more than 1 m: a 3 s ghost on seed 5); else they never start one. Returns the track
+        id per component (-1: none took it).
 
         Why not the camera-fixed tracks: a sparse take marks the track seen by the LiDAR (no box-only fix for 0.3 s,
         its last cluster hull kept for identity), so in a pile-up of robots 1 m apart the box-depth fixes that kept
@@ -362,8 +364,9 @@ class Tracker3D:
         if self.sparse_births:
             xy = self.predicted_xy(tm)
             taken = {j for _, j in pairs}
+            early = self.t0 is None or tm - self.t0 < self.learn_s  # the referee's box and a robot look alike then
             for j in range(len(centre)):
-                if j not in taken and (not len(xy) or np.linalg.norm(xy - centre[j, :2], axis=1).min() >= self.sparse_birth_m):
+                if not early and j not in taken and (not len(xy) or np.linalg.norm(xy - centre[j, :2], axis=1).min() >= self.sparse_birth_m):
                     ids[j] = self._new_lidar(centre[j], float(sigma[j]), float(t[j]), bool(aerial[j]), None, None, np.r_[centre[j, :2], centre[j, :2]]).id
         for tr, j in pairs:
             if tr.id not in takers:
