@@ -228,7 +228,8 @@ class Tracker3D:
         self.reacquire_m = 2.0
         self.coast_damping_s = 0.5
         self.sparse_gate_m = 0.8  # a sparse component farther than this from a track's prediction is not that robot
-        self.sparse_box_s = 0.15  # a track a camera box fixed this recently takes no sparse component (update_sparse)
+        self.sparse_box_s = 0.15  # a track a camera box fixed this recently takes no sparse component (update_sparse) ...
+        self.sparse_crowd_m = 1.5  # ... when another track is this near (a pile-up)
         self.sparse_births = False  # sparse components start tracks (LidarFirstConfig.lidar_only: not with box fixes)
         self.sparse_birth_m = 1.0  # ... when at least this far from every track (nearer: a fragment of that robot)
         self.learn_s = 2.0  # tracks born within this long of the first cluster are static suspects (Track3D.evidence)
@@ -341,8 +342,9 @@ class Tracker3D:
 
     def update_sparse(self, centre: np.ndarray, sigma: np.ndarray, t: np.ndarray, aerial: np.ndarray, skip: set[int]) -> list[int]:
         """Sparse components (too few returns or too small for a robot of their own, :attr:`Clusters.sparse`) taken
-        by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``) and not fixed by a camera box
-        within ``sparse_box_s``: a far robot's 3-7 returns keep its track measured. Hungarian on distance within
+        by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``), except those a camera box
+        fixed within ``sparse_box_s`` that have another track within ``sparse_crowd_m``: a far robot's 3-7 returns
+        keep its track measured. Hungarian on distance within
         ``sparse_gate_m`` (and the track's own gate) over every track: a component nearest a track that is measured
         otherwise (a cluster of this cloud, a box fix) or tentative is that robot's and moves nobody. With
         ``sparse_births`` (LiDAR only) a component farther than ``sparse_birth_m`` from every track starts a
@@ -351,18 +353,21 @@ class Tracker3D:
         sparse returns wandered more than 1 m: a 3 s ghost on seed 5); else they never start one. Returns the track
         id per component (-1: none took it).
 
-        Why not the camera-fixed tracks: a sparse take marks the track seen by the LiDAR (no box-only fix for 0.3 s,
-        its last cluster hull kept for identity), so in a pile-up of robots 1 m apart the box-depth fixes that kept
-        each track on its robot were blocked and boxes matched stale hulls (`synth field` seed 12, docs/runtime.md)."""
+        Why not the camera-fixed tracks in a pile-up: a sparse take marks the track seen by the LiDAR (no box-only
+        fix for 0.3 s, its last cluster hull kept for identity), so with robots 1 m apart the box-depth fixes that
+        kept each track on its robot were blocked and boxes matched stale hulls (`synth field` seed 12); alone, a
+        camera-fixed track keeps taking them: they outweigh a box depth taken from something else (docs/runtime.md)."""
         ids = [-1] * len(centre)
         if not len(centre):
             return ids
         tm = float(np.mean(t))
         states = (CONFIRMED, LOST, TENTATIVE) if self.sparse_births else (CONFIRMED, LOST)
-        takers = {tr.id for tr in self.tracks if tr.id not in skip and tr.state in states and tr.n_lidar and tm - tr.t_box > self.sparse_box_s}
+        xy = self.predicted_xy(tm)
+        gap = np.linalg.norm(xy[:, None] - xy[None], axis=2) + np.diag(np.full(len(xy), np.inf))  # (T,T) between tracks
+        crowded = gap.min(1) < self.sparse_crowd_m if len(xy) > 1 else np.zeros(len(xy), bool)
+        takers = {tr.id for tr, c in zip(self.tracks, crowded) if tr.id not in skip and tr.state in states and tr.n_lidar and not (c and tm - tr.t_box <= self.sparse_box_s)}
         pairs = self._assign(self.tracks, centre, sigma, t, aerial, max_gate_m=self.sparse_gate_m)
         if self.sparse_births:
-            xy = self.predicted_xy(tm)
             taken = {j for _, j in pairs}
             early = self.t0 is None or tm - self.t0 < self.learn_s  # the referee's box and a robot look alike then
             for j in range(len(centre)):
