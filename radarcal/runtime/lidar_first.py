@@ -50,8 +50,15 @@ class LidarFirstConfig:
     prefer_box_m: float = 0.3  # a LiDAR-seen track's box-depth fix farther than this from it is output instead
     sparse_clusters: bool = True  # tracks take components too sparse to start one (Tracker3D.update_sparse; measured: docs)
     suspect_protect_s: float = 5.0  # static suspects are not learnt as background during the run's first seconds
-    sparse_sigma_m: tuple[float, float] = (0.12, 0.25)  # added to a sparse component's sigma: ground, aerial
+    sparse_sigma_m: float = 0.12  # added to a sparse ground component's sigma (its few returns: across the view)
+    # added to the aerial robot's centre sigma, kept cluster or sparse: a few returns of a 0.8 m robot put it off
+    # across the view (median |across| 0.24-0.27 m at 10-25 m; measured: docs/runtime.md)
+    aerial_sigma_m: float = 0.25
     exclusion_m: float = 0.6  # output tracks nearer than this are one robot (a robot is <= 0.6 m across): one is measured
+    lidar_only: bool = False  # no box fixes (LiDAR only, `--localise lidar`): only clusters measure the tracks
+    # Tracker3D white acceleration (m/s^2) with box fixes (auto), clusters only: far centres' 0.1-0.2 m jitter goes
+    # less into the velocity at 1.5, but with a camera 1.5 made the sample replay worse (measured: docs/runtime.md)
+    accel_sigma: tuple[float, float] = (3.0, 1.5)
 
 
 def point_times(n: int, t_cloud: float, sweep_s: float, latency_s: float) -> np.ndarray:
@@ -75,7 +82,10 @@ class LidarFirst:
         bg = VoxelBackground((0.0, 0.0, -0.5, L, W, 3.5), self.cfg.bg_voxel_m, self.cfg.bg_tau_s, self.cfg.bg_hits) if self.cfg.learn_background else None
         self.filter = StaticFilter(self.T_field_lidar, occ, bg, (inset, inset, L - inset, W - inset),
                                    sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m)  # fmt: skip
-        self.tracker = tracker or Tracker3D()
+        self.tracker = tracker or Tracker3D(accel_sigma=self.cfg.accel_sigma[int(self.cfg.lidar_only)])
+        # without box fixes a far robot seen only by a few returns gets a track from them (with box fixes its box
+        # does: sparse-born tracks there took box-only fixes and labels of other robots, measured: docs/runtime.md)
+        self.tracker.sparse_births = self.cfg.lidar_only
         self.window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(1, self.cfg.window_sweeps))
         self.camera = camera
         self.T_cam_field = invert_T(T_field_cam) if T_field_cam is not None else None
@@ -137,8 +147,7 @@ class LidarFirst:
         cl = cluster_points(P, Tm, surf, self.sensor_xy, self.params)
         self.last_clusters = cl
         if len(cl):
-            s = range_sigma(cl.range_m, np.deg2rad(self.cfg.sigma_rot_deg), self.cfg.sigma_trans_m)
-            sigma = np.sqrt(0.05**2 + s**2 + (0.15 / np.sqrt(cl.n)) ** 2)
+            sigma = self._centre_sigma(cl, 0.0)
             ext = cl.hi - cl.lo
             hulls = [(cl.lo[j].copy(), cl.hi[j].copy()) for j in range(len(cl))]
             ids = self.tracker.update_clusters(cl.centre, sigma, cl.t, cl.aerial, ext, hulls, t_ref)
@@ -146,10 +155,14 @@ class LidarFirst:
             ids = []
         sp = cl.sparse
         if self.cfg.sparse_clusters and sp is not None and len(sp):
-            s = range_sigma(sp.range_m, np.deg2rad(self.cfg.sigma_rot_deg), self.cfg.sigma_trans_m)
             # a few returns from one rosette pass: the centre across the view is uncertain by up to half a robot
-            sigma = np.sqrt(0.05**2 + s**2 + (0.15 / np.sqrt(sp.n)) ** 2 + np.where(sp.aerial, *self.cfg.sparse_sigma_m[::-1]) ** 2)
-            self.tracker.update_sparse(sp.centre, sigma, sp.t, sp.aerial, set(ids))
+            self.tracker.update_sparse(sp.centre, self._centre_sigma(sp, self.cfg.sparse_sigma_m), sp.t, sp.aerial, set(ids))
+
+    def _centre_sigma(self, cl, extra_ground_m: float) -> np.ndarray:
+        """(K,) sigma (m) of cluster centres: 5 cm, the calibration at their range, 0.15 m / sqrt(points), and
+        ``extra_ground_m`` for a ground robot or :attr:`LidarFirstConfig.aerial_sigma_m` for the aerial one."""
+        s = range_sigma(cl.range_m, np.deg2rad(self.cfg.sigma_rot_deg), self.cfg.sigma_trans_m)
+        return np.sqrt(0.05**2 + s**2 + (0.15 / np.sqrt(cl.n)) ** 2 + np.where(cl.aerial, self.cfg.aerial_sigma_m, extra_ground_m) ** 2)
 
     # --- camera frames ---------------------------------------------------------------------------------------------
     def track_hulls(self, t: float) -> tuple[list[Track3D], np.ndarray, np.ndarray]:

@@ -185,13 +185,14 @@ class Pipeline:
 
             sig = bundle.transforms.get(f"T_{camera}_{lidar}")
             sig = sig.sigma if sig is not None else {}
-            lf_cfg = LidarFirstConfig(window_sweeps=cfg.window_sweeps, sweep_s=cfg.cloud_sweep_s, latency_s=cfg.cloud_latency_s, learn_background=cfg.learn_background, box_shadow=cfg.box_shadow,
-                                      sigma_rot_deg=max(float(sig.get("rot_deg", 0.25)), 0.1), sigma_trans_m=max(float(sig.get("trans_m", 0.03)), 0.01))  # fmt: skip
+            lidar_only = cfg.localise == "lidar"  # no box fixes: only clusters measure the tracks
+            lf_cfg = LidarFirstConfig(window_sweeps=cfg.window_sweeps, sweep_s=cfg.cloud_sweep_s, latency_s=cfg.cloud_latency_s, learn_background=cfg.learn_background,
+                                      box_shadow=cfg.box_shadow, lidar_only=lidar_only, sigma_rot_deg=max(float(sig.get("rot_deg", 0.25)), 0.1), sigma_trans_m=max(float(sig.get("trans_m", 0.03)), 0.01))  # fmt: skip
             from radarcal.runtime.clusters import ClusterParams
 
             # the aerial robot's sparse returns only without box fixes: in auto its box-depth fix is the better one
             # (measured, docs/runtime.md: the sparse centre is up to 0.4 m off across the view)
-            params = ClusterParams(sparse_aerial=cfg.localise == "lidar")
+            params = ClusterParams(sparse_aerial=lidar_only)
             self.lidar_first = LidarFirst(self.T_field_cam @ T_cam_lidar, self.field_model, lf_cfg, params, camera=self.camera, T_field_cam=self.T_field_cam)
             if cfg.localise == "lidar":
                 self.queue = None  # no box path

@@ -228,6 +228,10 @@ class Tracker3D:
         self.reacquire_m = 2.0
         self.coast_damping_s = 0.5
         self.sparse_gate_m = 0.8  # a sparse component farther than this from a track's prediction is not that robot
+        self.sparse_box_s = 0.15  # a track a camera box fixed this recently takes no sparse component (update_sparse) ...
+        self.sparse_crowd_m = 1.5  # ... when another track is this near (a pile-up)
+        self.sparse_births = False  # sparse components start tracks (LidarFirstConfig.lidar_only: not with box fixes)
+        self.sparse_birth_m = 1.0  # ... when at least this far from every track (nearer: a fragment of that robot)
         self.learn_s = 2.0  # tracks born within this long of the first cluster are static suspects (Track3D.evidence)
         self.t0: float | None = None
         self.tracks: list[Track3D] = []
@@ -319,23 +323,61 @@ class Tracker3D:
             ids[j] = tr.id
         for j in range(K):
             if ids[j] < 0:
-                tr = self._new(centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
-                tr.hits, tr.n_lidar, tr.t_lidar, tr.aerial = 1, 1, float(t[j]), bool(aerial[j])
-                tr.static_suspect = float(t[j]) - self.t0 < self.learn_s
-                tr.envelope = np.r_[hulls[j][0][:2], hulls[j][1][:2]].astype(float)
-                tr.extent = np.asarray(extent[j], float).copy()
-                tr.hull, tr.t_points = hulls[j], float(t_ref)
+                tr = self._new_lidar(centre[j], float(sigma[j]), float(t[j]), bool(aerial[j]), extent[j], hulls[j], np.r_[hulls[j][0][:2], hulls[j][1][:2]])
+                tr.t_points = float(t_ref)
                 ids[j] = tr.id
         return ids
 
+    def _new_lidar(self, centre: np.ndarray, sigma: float, t: float, aerial: bool, extent, hull, envelope: np.ndarray) -> Track3D:
+        """A tentative track started by a LiDAR measurement (a cluster, or a sparse component: no extent, no hull)."""
+        tr = self._new(centre[:2], sigma, t, float(centre[2]), "lidar")
+        tr.hits, tr.n_lidar, tr.t_lidar, tr.aerial = 1, 1, t, aerial
+        self.t0 = t if self.t0 is None else self.t0
+        tr.static_suspect = t - self.t0 < self.learn_s
+        tr.envelope = np.asarray(envelope, float)
+        if extent is not None:
+            tr.extent = np.asarray(extent, float).copy()
+        tr.hull = hull
+        return tr
+
     def update_sparse(self, centre: np.ndarray, sigma: np.ndarray, t: np.ndarray, aerial: np.ndarray, skip: set[int]) -> list[int]:
         """Sparse components (too few returns or too small for a robot of their own, :attr:`Clusters.sparse`) taken
-        by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``), Hungarian on distance within
-        ``sparse_gate_m`` (and the track's own gate): a far robot's 3-7 returns keep its track measured, they never
-        start one. Returns the track id per component (-1: none took it)."""
+        by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``), except those a camera box
+        fixed within ``sparse_box_s`` that have another track within ``sparse_crowd_m``: a far robot's 3-7 returns
+        keep its track measured. Hungarian on distance within
+        ``sparse_gate_m`` (and the track's own gate) over every track: a component nearest a track that is measured
+        otherwise (a cluster of this cloud, a box fix) or tentative is that robot's and moves nobody. With
+        ``sparse_births`` (LiDAR only) a component farther than ``sparse_birth_m`` from every track starts a
+        tentative track, which the next sweep's component or cluster confirms — after the first ``learn_s`` only
+        (before, a few returns of the referee's box and of a far robot look alike, and a static suspect born of
+        sparse returns wandered more than 1 m: a 3 s ghost on seed 5); else they never start one. Returns the track
+        id per component (-1: none took it).
+
+        Why not the camera-fixed tracks in a pile-up: a sparse take marks the track seen by the LiDAR (no box-only
+        fix for 0.3 s, its last cluster hull kept for identity), so with robots 1 m apart the box-depth fixes that
+        kept each track on its robot were blocked and boxes matched stale hulls (`synth field` seed 12); alone, a
+        camera-fixed track keeps taking them: they outweigh a box depth taken from something else (docs/runtime.md)."""
         ids = [-1] * len(centre)
-        live = [tr for tr in self.tracks if tr.id not in skip and tr.state in (CONFIRMED, LOST) and tr.n_lidar]
-        for tr, j in self._assign(live, centre, sigma, t, aerial, max_gate_m=self.sparse_gate_m):
+        if not len(centre):
+            return ids
+        tm = float(np.mean(t))
+        states = (CONFIRMED, LOST, TENTATIVE) if self.sparse_births else (CONFIRMED, LOST)
+        xy = self.predicted_xy(tm)
+        gap = np.linalg.norm(xy[:, None] - xy[None], axis=2) + np.diag(np.full(len(xy), np.inf))  # (T,T) between tracks
+        crowded = gap.min(1) < self.sparse_crowd_m if len(xy) > 1 else np.zeros(len(xy), bool)
+        takers = {tr.id for tr, c in zip(self.tracks, crowded) if tr.id not in skip and tr.state in states and tr.n_lidar and not (c and tm - tr.t_box <= self.sparse_box_s)}
+        pairs = self._assign(self.tracks, centre, sigma, t, aerial, max_gate_m=self.sparse_gate_m)
+        if self.sparse_births:
+            taken = {j for _, j in pairs}
+            early = self.t0 is None or tm - self.t0 < self.learn_s  # the referee's box and a robot look alike then
+            for j in range(len(centre)):
+                if not early and j not in taken and (not len(xy) or np.linalg.norm(xy - centre[j, :2], axis=1).min() >= self.sparse_birth_m):
+                    ids[j] = self._new_lidar(centre[j], float(sigma[j]), float(t[j]), bool(aerial[j]), None, None, np.r_[centre[j, :2], centre[j, :2]]).id
+        for tr, j in pairs:
+            if tr.id not in takers:
+                continue
+            if tr.state == TENTATIVE:
+                tr.n_lidar += 1
             self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
             tr.t_lidar = max(tr.t_lidar, float(t[j]))
             ids[j] = tr.id

@@ -55,14 +55,15 @@ def test_realistic_replay_auto_box_and_lidar_only(tmp_path, capsys):
     box, _ = _run(rep, capsys, "--localise", "box")
     lidar, _ = _run(rep, capsys, "--no-camera")
     print(f"auto {auto}\nbox {box}\nlidar only {lidar}")
-    # seed 7, never tuned on, is the hardest measured (docs/runtime.md: auto 78.9 -> 82.8 %, box 84.8 % right)
+    # seed 7, never tuned on, is the hardest measured (docs/runtime.md: auto 78.9 -> 82.8 -> 80.6 % since the pile-up
+    # rule of the sparse components, box 84.8 % right)
     assert auto["right_within_0.6m_pct"] > 78 and auto["median_m"] < 0.2 and auto["wrong_label_pct"] < 6
     assert auto["false_per_frame"] < 0.35 and auto["longest_ghost_s"] < 1.0
     assert box["right_within_0.6m_pct"] > 75
     assert lidar["longest_ghost_s"] < 1.0 and lidar["false_per_frame"] < 0.4  # people at the boundary never become robots
-    # seed 7: 51.2 % before the sparse components / static-suspect changes, 66.1 % after (73.5 % with the 1.5 m/s^2
-    # tracker, reverted); 74-89 % on the other seeds (goal 95 %: not met, docs/runtime.md)
-    assert lidar["lidar_within_0.3m_pct"] > 65
+    # seed 7: 51.2 % before the sparse components / static-suspect changes, 66.1 % after, 79.8 % with the LiDAR-only
+    # 1.5 m/s^2, the aerial sigma and sparse births (84-91 % on the other seeds; goal 95 %: not met, docs/runtime.md)
+    assert lidar["lidar_within_0.3m_pct"] > 76
 
 
 def test_one_robot_is_never_on_the_referee_map_twice(tmp_path, capsys):
