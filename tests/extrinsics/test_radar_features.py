@@ -184,3 +184,36 @@ def test_association_drops_a_much_weaker_detection_beside_a_reflector_even_when_
     assert pairs.tolist() == [[0, 0]]
     pairs = _associate(pred, m[1:], np.array([-6.0]), np.array([3.0]), gate=0.35, sigma_unit=0.05, rcs_ref=8.0)
     assert pairs.tolist() == [[0, 0]]  # alone, the weak echo is within its gate (sigma 0.17 m)
+
+
+def test_outlier_rule_does_not_test_a_strong_echo_that_carries_a_parameter_of_the_fit():
+    """Two strong echoes (unit weight, 3 cm noise) among three weak ones (weight 0.02: 21 cm): each strong one carries
+    more than a parameter's worth of the fit's information (trace of its leverage 1.4), so the others can neither
+    predict it nor give a noise scale for it. Over 300 noise draws neither is rejected (without the leverage rule 14
+    were, and one such rejection put check seed 300's left radar 13.7 deg off)."""
+    from radarcal.extrinsics.radar import Pose2, reject_outliers
+
+    src = np.array([[1.5, 1.0], [2.0, -1.5], [2.5, 2.0], [3.0, 0.3], [1.8, -0.5]])
+    w = np.array([0.02, 1.0, 0.02, 1.0, 0.02])
+    true = Pose2(np.radians(20.0), np.array([0.3, -0.2]))
+    for seed in range(300):
+        dst = true.apply(src) + np.random.default_rng(seed).normal(0, 1, src.shape) * (0.03 / np.sqrt(w))[:, None]
+        keep, _ = reject_outliers(src, dst, threshold=0.15, k_sigma=3.0, weights=w)
+        assert keep[1] and keep[3], seed
+
+
+def test_a_merged_clutter_cluster_does_not_make_a_single_frame_a_ghost():
+    """Three frames: two reflectors seen in each, three clutter sources within 0.1 m merged into one cluster of 9
+    detections, and one frame of a turned reflector's weak echo. The 30 % rule counts frames, so its reference is
+    the most-seen cluster's count capped at the median count of the clusters seen more than once (3, not 9): the
+    single frame is kept (at 9 it was dropped as a ghost)."""
+    rng = np.random.default_rng(0)
+    clutter = np.repeat(np.array([[2.5, -1.0], [2.6, -1.05], [2.55, -0.95]]), 3, axis=0)
+    xy = np.concatenate([np.array([2.0, 0.0]) + rng.normal(0, 0.01, (3, 2)), np.array([3.0, 1.0]) + rng.normal(0, 0.01, (3, 2)),
+                         clutter + rng.normal(0, 0.005, (9, 2)), [[3.6, -0.2]]])
+    m, c = aggregate_frames(xy)
+    assert c.tolist() == [3, 3, 9, 1]
+    assert m[3] == pytest.approx([3.6, -0.2])
+    m, c = aggregate_frames(  # five frames of two reflectors and a one-frame ghost: still dropped
+        np.concatenate([np.repeat([[2.0, 0.0], [3.0, 1.0]], 5, axis=0), [[3.6, -0.2]]]))
+    assert c.tolist() == [5, 5]

@@ -15,7 +15,9 @@ __all__ = ["FilterResult", "aggregate_frames", "filter_detections", "quantisatio
 def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.3, rcs: np.ndarray | None = None,
                      rcs_split_db: float = 4.0) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Average repeated detections of one radar over many frames: single-linkage clusters within ``gate``, cluster
-    means; clusters seen in fewer than ``min_fraction`` of the most-seen cluster's frames are dropped (ghosts).
+    means; clusters seen in fewer than ``min_fraction`` of the frames a source seen in every frame appears in (the
+    most-seen cluster's count, at most the median count of those seen more than once: :func:`_frames_seen`) are
+    dropped (ghosts).
 
     With ``rcs`` (dBsm per detection) a cluster of three or more whose RCS values form two classes (one may be a
     single frame) more than ``rcs_split_db`` (and 3 within-class sigma) apart is split in two (a ground-bounce multipath ghost sits a few decimetres behind its reflector, ~8 dB weaker, and would
@@ -60,11 +62,20 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
     sums = np.zeros((ncomp, 2))
     np.add.at(sums, lab, xy * w[:, None])
     means = sums / wsum[:, None]
-    keep = counts >= max(1, min_fraction * counts.max())
+    keep = counts >= max(1, min_fraction * _frames_seen(counts))
     if rcs is None:
         return means[keep], counts[keep]
     rmean = rc.max() + 10 * np.log10(wsum / counts)  # power mean: n frames at this RCS carry the cluster's total weight
     return means[keep], counts[keep], rmean[keep]
+
+
+def _frames_seen(counts: np.ndarray) -> float:
+    """How many frames a source seen in every frame appears in: the most-seen cluster's count, but at most the median
+    count of the clusters seen more than once -- a cluster holding more detections than there are frames merges
+    several sources (clutter beside a tripod foot and its neighbour, a multipath ghost) and would make a turned
+    reflector's one or two frames look like a ghost's."""
+    many = counts[counts > 1]
+    return float(min(counts.max(), np.median(many))) if len(many) else float(counts.max())
 
 
 @dataclass

@@ -41,7 +41,7 @@ def leave_one_out(src: np.ndarray, dst: np.ndarray, **fit_kw) -> dict:
 def reject_outliers(src: np.ndarray, dst: np.ndarray, threshold: float = 0.15, min_keep: int = 3, k_sigma: float = 4.0, **fit_kw) -> tuple[np.ndarray, list]:
     """Iteratively drop the most significant correspondence -- of those whose leave-one-out residual (leverage formula)
     exceeds ``threshold`` (m), the largest studentised one (weighted, its leverage's variance inflation
-    ``(I - H_jj)^-1`` removed) -- while its exact hold-out residual (a refit without it) stays beyond ``threshold`` and,
+    ``(I - H_jj)^-1`` removed; not one whose leverage's trace is 1 or more) -- while its exact hold-out residual (a refit without it) stays beyond ``threshold`` and,
     studentised, beyond ``k_sigma`` (small-sample corrected) times the robust unit-weight sigma of the fit without it.
     Returns (keep mask, [(index, reason)])."""
     src = np.asarray(src, float).reshape(-1, 2)
@@ -67,9 +67,11 @@ def reject_outliers(src: np.ndarray, dst: np.ndarray, threshold: float = 0.15, m
         d[ok] = np.linalg.solve(M[ok], f.residuals[ok][..., None])[..., 0]  # leave-one-out residuals (leverage formula)
         # the candidate: the most significant (studentised, weighted) of those beyond ``threshold`` in metres -- not the
         # largest in metres, which is often a weak echo well within its own noise and would end the search; a point
-        # that alone fixes a direction of the fit (leverage 1) cannot be tested
+        # that alone fixes a direction of the fit (leverage 1) cannot be tested, nor one that carries a whole
+        # parameter's worth of the information (trace of its leverage >= 1: one of a radar's two strong echoes among
+        # weak ones -- the others neither predict it nor give a noise scale that applies to it)
         stat = w[idx] * np.einsum("ni,nij,nj->n", d, M, d)
-        cand = ok & (np.linalg.norm(d, axis=1) > threshold)
+        cand = ok & (np.linalg.norm(d, axis=1) > threshold) & (np.trace(H, axis1=1, axis2=2) < 1.0)
         if not cand.any():
             break
         j = int(np.argmax(np.where(cand, stat, -1.0)))
