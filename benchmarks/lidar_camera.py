@@ -529,8 +529,11 @@ def verdict_table(records: list[dict], options=None) -> dict:
             sig = sigma_for_verdict(r["checks"], o)
             covered.append(bool(np.all(np.abs(np.asarray(r["err_params"])[3:]) <= 3 * sig[3:] + 1e-9)))
         rest = [c for r, c in zip(rs, covered) if not (r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1])]
-        # the verdict as it was when the scene ran (stored "converged"; the standard-deviation bootstrap before this change)
-        prev_fr, prev_fa = sum(not r["converged"] for r in good), sum(r["converged"] for r in bad)
+        # "before": records with the sector jackknife (cache v2) are re-judged without it (the jackknife does not change
+        # the result, only the sigma); older records keep the verdict the run printed (the standard-deviation bootstrap)
+        prev = {id(r): edge_verdict({k: v for k, v in r["checks"].items() if k != "sector_jackknife"}, o)[0] if "sector_jackknife" in r["checks"] else r["converged"]
+                for r in rs}
+        prev_fr, prev_fa = sum(not prev[id(r)] for r in good), sum(prev[id(r)] for r in bad)
         acc_cov = [c for r, c in zip(rs, covered) if acc[id(r)]]
         by_lidar, by_layout = _good_by(rs, "lidar"), _good_by(rs, "layout")
         rows[fam] = {"scenes": len(rs), "good": len(good), "bad": len(bad), "middle": len(rs) - len(good) - len(bad), "prev_false_refusals": prev_fr,

@@ -10,7 +10,8 @@ basin. All scenes share one ``T`` (multi-scene joint refinement).
 
 Reported: residual, match counts, sigma of the 6 parameters (from the Jacobian; matches along one edge are
 correlated, so treat it as a lower bound) and a block-bootstrap sigma (edge stretches resampled together; more
-honest, still without shared biases), observability (spread of edge directions, Jacobian conditioning),
+honest, still without shared biases) widened by a sector jackknife (one image region left out: a bias that region
+carries), observability (spread of edge directions, Jacobian conditioning),
 convergence, and cost profiles along each parameter for a report.
 """
 
@@ -584,6 +585,14 @@ def edge_verdict(checks: dict, o: RefineOptions) -> tuple[bool, str]:
     return ok, msg
 
 
+def _reweighted_solve(scenes, matches, T, weights, n_par, o) -> np.ndarray:
+    """The 6 parameters (a move from ``T``) re-solved robustly (Cauchy) with the matches held and each residual
+    multiplied by ``weights`` (resampling counts, or 0 for left-out matches); ``n_par`` 3 holds the translation."""
+    res = least_squares(lambda x: weights * _residual_fn(x, T, scenes, matches), np.zeros(n_par), loss="cauchy", f_scale=o.loss_scale_px,
+                        x_scale=np.array([1e-3] * 3 + [1e-2] * 3)[:n_par], max_nfev=30)
+    return _full_params(res.x)
+
+
 def block_bootstrap_sigma(scenes, matches, T, o: RefineOptions, return_samples: bool = False):
     """Spread (1 sigma, rx ry rz rad, tx ty tz m) of the 6 parameters over ``o.bootstrap`` robust re-solves in
     which the matched LiDAR edge samples are resampled with replacement in spatial blocks of
@@ -602,10 +611,7 @@ def block_bootstrap_sigma(scenes, matches, T, o: RefineOptions, return_samples: 
     n_par = 3 if o.fix_translation else 6
     xs = []
     for _ in range(o.bootstrap):
-        w = np.sqrt(np.bincount(rng.integers(0, nb, nb), minlength=nb).astype(float))[bid]
-        res = least_squares(lambda x: w * _residual_fn(x, T, scenes, matches), np.zeros(n_par), loss="cauchy", f_scale=o.loss_scale_px,
-                            x_scale=np.array([1e-3] * 3 + [1e-2] * 3)[:n_par], max_nfev=30)
-        xs.append(_full_params(res.x))
+        xs.append(_reweighted_solve(scenes, matches, T, np.sqrt(np.bincount(rng.integers(0, nb, nb), minlength=nb).astype(float))[bid], n_par, o))
     xs = np.asarray(xs)
     sd = np.std(xs, axis=0, ddof=1)
     return (sd, xs) if return_samples else sd
@@ -613,7 +619,7 @@ def block_bootstrap_sigma(scenes, matches, T, o: RefineOptions, return_samples: 
 
 
 def sector_jackknife(scenes, matches, T, o: RefineOptions) -> np.ndarray:
-    """Leave-one-sector-out re-solves: each scene's image cut into ``o.jackknife_grid`` squared sectors, the matches
+    """Leave-one-sector-out re-solves: each scene's image cut into ``o.jackknife_grid`` x ``o.jackknife_grid`` sectors, the matches
     of one sector (with at least ``o.jackknife_min_matches``) left out and the 6 parameters re-solved robustly,
     matches held fixed. Rows (scene, sector, matches left out, rx ry rz rad, tx ty tz m: the move from ``T``)."""
     rows, sectors = [], []
@@ -628,11 +634,8 @@ def sector_jackknife(scenes, matches, T, o: RefineOptions) -> np.ndarray:
         out = sector == s_id
         if out.sum() < o.jackknife_min_matches or (~out).sum() < 6:
             continue
-        keep = (~out).astype(float)
-        res = least_squares(lambda x: keep * _residual_fn(x, T, scenes, matches), np.zeros(n_par), loss="cauchy", f_scale=o.loss_scale_px,
-                            x_scale=np.array([1e-3] * 3 + [1e-2] * 3)[:n_par], max_nfev=30)
         g2 = o.jackknife_grid ** 2
-        rows.append([s_id // g2, s_id % g2, int(out.sum()), *_full_params(res.x)])
+        rows.append([s_id // g2, s_id % g2, int(out.sum()), *_reweighted_solve(scenes, matches, T, (~out).astype(float), n_par, o)])
     return np.asarray(rows, float).reshape(-1, 9)
 
 
