@@ -364,7 +364,9 @@ def real_mlcc_dense(seeds=(0, 1, 2)) -> dict:
 
 # ---------------------------------------------------------------------------------------------------------------
 # verdict calibration: false refusals / false acceptances over many scenes of two independent families
-VERDICT_CACHE = Path(__file__).resolve().parents[1] / "out" / "lidar_camera_verdict.jsonl"  # /out/ is git-ignored
+# /out/ is git-ignored; "_v2": records with the depth profile (checks["depth_profile"], issue #16 item 10 job 3), so
+# that earlier runs (lidar_camera_verdict.jsonl, without it) are not mixed in
+VERDICT_CACHE = Path(__file__).resolve().parents[1] / "out" / "lidar_camera_verdict_v2.jsonl"
 VERDICT_GOOD = (0.1, 0.02)  # a result within 0.1 deg and 2 cm of the truth must be accepted (<= 10 % refusals)
 VERDICT_BAD = (0.2, 0.05)  # a result beyond 0.2 deg or 5 cm must never be called converged
 
@@ -393,20 +395,21 @@ def _verdict_edge_scenes(scene, methods=("lsd",)) -> dict:
 
 def verdict_run(scene, image_edges: str = "lsd", **opts):
     """Edges + refinement exactly as ``radarcal lidar-camera --refine [--image-edges auto]`` runs them (translation
-    prior 0.3 m)."""
+    prior 0.3 m). Returns (result, the edge scenes it was refined on, options)."""
     from radarcal.extrinsics.refine import RefineOptions, refine_edges, refine_edges_choosing
 
     o = RefineOptions(**{"coarse_search_deg": 6.0, "translation_prior_m": 0.3, **opts})
     if image_edges == "auto":
         cand = _verdict_edge_scenes(scene, ("lsd", "lsd+canny", "canny"))
         chosen, results, _ = refine_edges_choosing(cand, cand.pop("canny"), scene.T_init, o)
-        return results[chosen]
-    return refine_edges(_verdict_edge_scenes(scene, (image_edges,))[image_edges], scene.T_init, o)
+        return results[chosen], cand[chosen], o
+    scenes = _verdict_edge_scenes(scene, (image_edges,))[image_edges]
+    return refine_edges(scenes, scene.T_init, o), scenes, o
 
 
 def _verdict_cache(image_edges: str) -> Path:
     """The sweep's cache: one per image-edge method (records are keyed by family and seed)."""
-    return VERDICT_CACHE if image_edges == "lsd" else VERDICT_CACHE.with_name(f"lidar_camera_verdict_{image_edges.replace('+', '_')}.jsonl")
+    return VERDICT_CACHE if image_edges == "lsd" else VERDICT_CACHE.with_name(f"{VERDICT_CACHE.stem}_{image_edges.replace('+', '_')}.jsonl")
 
 
 EDGES_CACHE = VERDICT_CACHE.with_name("lidar_camera_edges_choice.jsonl")
@@ -468,6 +471,7 @@ def verdict_sweep(families=("family2", "old"), seeds=range(30), cache: Path = VE
     """Run (or reuse from ``cache``, one JSON line per family/seed) the refinement on every scene; the records
     hold the truth errors and the checks the verdict is decided on (``RefineResult.checks``)."""
     from radarcal import geometry
+    from radarcal.extrinsics.refine import paired_cost_increase
 
     cache.parent.mkdir(parents=True, exist_ok=True)
     done: dict = {}
@@ -486,11 +490,12 @@ def verdict_sweep(families=("family2", "old"), seeds=range(30), cache: Path = VE
             if (fam, seed) not in done:
                 t0 = time.perf_counter()
                 s = verdict_scene(fam, seed)
-                res = verdict_run(s, image_edges)
+                res, edge_scenes, o = verdict_run(s, image_edges)
                 e_deg, e_m = geometry.pose_error(res.T_cam_lidar, s.T_cam_lidar)
+                truth_vs_result = paired_cost_increase(edge_scenes, res.T_cam_lidar, s.T_cam_lidar, o)  # diagnosis only: (cost ratio, t) of the truth
                 rec = {"family": fam, "seed": seed, "layout": s.params.get("layout", "structured"), "lidar": s.params.get("lidar"), "err_deg": e_deg, "err_m": e_m,
                        "err_params": _error_params(res.T_cam_lidar, s.T_cam_lidar).tolist(), "converged": res.converged, "message": res.message,
-                       "checks": res.checks, "seconds": time.perf_counter() - t0}
+                       "checks": res.checks, "truth_vs_result": list(truth_vs_result), "seconds": time.perf_counter() - t0}
                 with cache.open("a") as f:
                     f.write(json.dumps(rec) + "\n")
                 done[(fam, seed)] = rec
@@ -524,8 +529,11 @@ def verdict_table(records: list[dict], options=None) -> dict:
             sig = sigma_for_verdict(r["checks"], o)
             covered.append(bool(np.all(np.abs(np.asarray(r["err_params"])[3:]) <= 3 * sig[3:] + 1e-9)))
         rest = [c for r, c in zip(rs, covered) if not (r["err_deg"] <= VERDICT_GOOD[0] and r["err_m"] <= VERDICT_GOOD[1])]
-        # the verdict as it was when the scene ran (stored "converged"; the standard-deviation bootstrap before this change)
-        prev_fr, prev_fa = sum(not r["converged"] for r in good), sum(r["converged"] for r in bad)
+        # "before": records with the sector jackknife (cache v2) are re-judged without it (the jackknife does not change
+        # the result, only the sigma); older records keep the verdict the run printed (the standard-deviation bootstrap)
+        prev = {id(r): edge_verdict({k: v for k, v in r["checks"].items() if k != "sector_jackknife"}, o)[0] if "sector_jackknife" in r["checks"] else r["converged"]
+                for r in rs}
+        prev_fr, prev_fa = sum(not prev[id(r)] for r in good), sum(prev[id(r)] for r in bad)
         acc_cov = [c for r, c in zip(rs, covered) if acc[id(r)]]
         by_lidar, by_layout = _good_by(rs, "lidar"), _good_by(rs, "layout")
         rows[fam] = {"scenes": len(rs), "good": len(good), "bad": len(bad), "middle": len(rs) - len(good) - len(bad), "prev_false_refusals": prev_fr,

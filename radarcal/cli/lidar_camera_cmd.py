@@ -122,7 +122,7 @@ def _human(s: dict, bundle: Path) -> None:
             typer.echo(f"  image edges: {c['chosen']} kept (alignment cost on Canny edges " + ", ".join(f"{k} {v:.2f}" for k, v in c["canny_alignment_cost_px2"].items()) + " px^2)")
         typer.echo(f"  edge score {q['edge_score_before_px']:.2f} -> {q['edge_score_after_px']:.2f} px; sigma {_sigma_text(q['sigma_rot_deg'], q['sigma_trans_m'], s['rotation_only'])} "
                    f"(lower bound); edge-direction spread {q['observability']['direction_spread']:.2f}")
-        typer.echo(f"  block-bootstrap sigma {_sigma_text(q['sigma_bootstrap_rot_deg'], q['sigma_bootstrap_trans_m'], s['rotation_only'])} (edge stretches resampled, equally good restarts, a shared-bias floor)")
+        typer.echo(f"  block-bootstrap sigma {_sigma_text(q['sigma_bootstrap_rot_deg'], q['sigma_bootstrap_trans_m'], s['rotation_only'])} (edge stretches resampled, one image region left out, equally good restarts, a shared-bias floor)")
     for w in s["warnings"]:
         typer.echo(f"  warning: {w}")
     for d in s.get("derived", []):
