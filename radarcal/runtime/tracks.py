@@ -128,6 +128,7 @@ class Track3D:
     t_seen: float  # last measurement of any kind
     t_lidar: float = -np.inf  # last LiDAR cluster
     t_box: float = -np.inf  # last box-only (depth / ground-ray) fix
+    t_sparse: float = -np.inf  # last sparse component nearest this track that it did not take (the LiDAR still sees it)
     state: str = TENTATIVE
     hits: int = 1
     n_lidar: int = 0
@@ -226,6 +227,7 @@ class Tracker3D:
         self.vmax = float(vmax)
         self.init_speed_sigma = float(init_speed_sigma)
         self.reacquire_m = 2.0
+        self.confirm_mixed_box_hits = 10  # box fixes that confirm a track born of one cluster the LiDAR did not see again
         self.coast_damping_s = 0.5
         self.sparse_gate_m = 0.8  # a sparse component farther than this from a track's prediction is not that robot
         self.sparse_box_s = 0.15  # a track a camera box fixed this recently takes no sparse component (update_sparse) ...
@@ -375,6 +377,7 @@ class Tracker3D:
                     ids[j] = self._new_lidar(centre[j], float(sigma[j]), float(t[j]), bool(aerial[j]), None, None, np.r_[centre[j, :2], centre[j, :2]]).id
         for tr, j in pairs:
             if tr.id not in takers:
+                tr.t_sparse = max(tr.t_sparse, float(t[j]))
                 continue
             if tr.state == TENTATIVE:
                 tr.n_lidar += 1
@@ -394,6 +397,8 @@ class Tracker3D:
                 track.t_box, track.n_box = t, track.n_box + 1
                 return track
             if t - track.t_lidar > 0.3:  # the LiDAR has lost it: two consistent box fixes move the track there
+                if t - track.t_sparse <= 0.3:
+                    return None  # ... unless its returns are still where it is (a sparse component it did not take)
                 pend = track.pending
                 if pend is not None and t - pend[1] < 0.2 and np.linalg.norm(pend[0] - xy) < 0.8:
                     track.x = np.array([xy[0], xy[1], 0.0, 0.0])
@@ -434,6 +439,13 @@ class Tracker3D:
             tr.ever_moved = tr.ever_moved or best.ever_moved
             best.state = "dropped"
 
+    def _mixed_box_hits(self, tr: Track3D) -> int:
+        """Box fixes that confirm a tentative track born of one cluster the LiDAR has not seen again:
+        ``confirm_box_hits`` alone, ``confirm_mixed_box_hits`` when another confirmed or lost track is within
+        ``sparse_crowd_m`` (a pile-up, where box depths of partly hidden robots are often another robot's)."""
+        crowd = any(o is not tr and o.state in (CONFIRMED, LOST) and float(np.linalg.norm(o.x[:2] - tr.x[:2])) < self.sparse_crowd_m for o in self.tracks)
+        return self.confirm_mixed_box_hits if crowd else self.confirm_box_hits
+
     def step(self, t: float) -> None:
         """States at frame time ``t``: confirm, lose, drop; predict every track to ``t``."""
         keep = []
@@ -442,7 +454,7 @@ class Tracker3D:
                 continue
             age = t - tr.t_seen
             if tr.state == TENTATIVE:
-                if tr.n_lidar >= self.confirm_hits or (tr.n_lidar == 0 and tr.n_box >= self.confirm_box_hits):
+                if tr.n_lidar >= self.confirm_hits or tr.n_box >= (self.confirm_box_hits if tr.n_lidar == 0 else self._mixed_box_hits(tr)):
                     tr.state = CONFIRMED
                     self._inherit(tr, t)
                 elif age > self.tentative_s or (tr.n_lidar == 0 and t - (tr.t_seen - 0) > 0.25):
