@@ -142,18 +142,18 @@ class Fit2D:
         Jb = J.reshape(n, 2, -1)
         return np.einsum("nip,pq,njq->nij", Jb, A, Jb)
 
-    def deletion_residuals(self) -> np.ndarray:
-        """Leave-one-out residual lengths from one fit (leverage formula ``(I - H_ii)^-1 r_i`` per 2x2 block; exact
-        for a linear model, first order for this one)."""
-        n = len(self.residuals)
+    def deletion_residuals(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Leave-one-out residuals from one fit (leverage formula ``(I - H_ii)^-1 r_i`` per 2x2 block; exact for a
+        linear model, first order for this one): ((N,2) residual vectors (m), (N,2,2) ``I - H_ii``, (N,) bool where
+        that block is invertible; the residual is 0 elsewhere). A singular Jacobian gives no leverage (H = 0)."""
         H = self.leverage()
         if not np.isfinite(H).all():
-            return np.full(n, np.nan)
+            H = np.zeros_like(H)
         M = np.eye(2)[None] - H
         ok = np.abs(np.linalg.det(M)) > 1e-12
-        out = np.full(n, np.inf)
-        out[ok] = np.linalg.norm(np.linalg.solve(M[ok], self.residuals[ok][..., None])[..., 0], axis=1)
-        return out
+        d = np.zeros((len(self.residuals), 2))
+        d[ok] = np.linalg.solve(M[ok], self.residuals[ok][..., None])[..., 0]
+        return d, M, ok
 
     def inverse_sigma(self) -> dict:
         """1-sigma of the inverse pose's (theta, a, b) (e.g. the radar's pose in G when the fit maps G -> radar) by

@@ -58,20 +58,14 @@ def reject_outliers(src: np.ndarray, dst: np.ndarray, threshold: float = 0.15, m
         f = fit_rigid_2d(src[idx], dst[idx], src_z=None if zz is None else zz[idx], weights=w[idx], **fit_kw)
         if f.rms <= threshold / k_sigma / 4:
             break  # everything already fits far below the threshold
-        H = f.leverage()
-        if not np.isfinite(H).all():
-            H = np.zeros_like(H)
-        M = np.eye(2)[None] - H
-        ok = np.abs(np.linalg.det(M)) > 1e-12
-        d = np.zeros((len(idx), 2))
-        d[ok] = np.linalg.solve(M[ok], f.residuals[ok][..., None])[..., 0]  # leave-one-out residuals (leverage formula)
+        d, M, ok = f.deletion_residuals()
         # the candidate: the most significant (studentised, weighted) of those beyond ``threshold`` in metres -- not the
         # largest in metres, which is often a weak echo well within its own noise and would end the search; a point
         # that alone fixes a direction of the fit (leverage 1) cannot be tested, nor one that carries a whole
         # parameter's worth of the information (trace of its leverage >= 1: one of a radar's two strong echoes among
         # weak ones -- the others neither predict it nor give a noise scale that applies to it)
         stat = w[idx] * np.einsum("ni,nij,nj->n", d, M, d)
-        cand = ok & (np.linalg.norm(d, axis=1) > threshold) & (np.trace(H, axis1=1, axis2=2) < 1.0)
+        cand = ok & (np.linalg.norm(d, axis=1) > threshold) & (np.trace(M, axis1=1, axis2=2) > 1.0)  # trace(I - H) > 1: trace(H) < 1
         if not cand.any():
             break
         j = int(np.argmax(np.where(cand, stat, -1.0)))
