@@ -478,13 +478,9 @@ def on_other_robot(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray
     track has had LiDAR clusters (two robots side by side in one cluster: the sample replay's blue_1 beside blue_2's
     track); a box-born track's gate does not count, it was made of such fixes (A 4: blue_3 behind blue_2, its box
     depths 0.8 m short, one robot twice on the map)."""
-    own = np.inf if tr is None else float(np.linalg.norm(tr.x[:2] + tr.x[2:] * (t - tr.t) - xy))
+    own = np.inf if tr is None else float(np.linalg.norm(tk.predicted_xy(t, [tr])[0] - xy))
     if tr is not None and tr.n_lidar and own <= float(tk._gate(tr, np.array([sigma]), np.array([t]))[0]):
         return False
-    for o in tk.tracks:
-        if o.label in (None, label) or o.aerial or t - o.t_lidar >= 0.3:
-            continue
-        d = float(np.linalg.norm(o.x[:2] + o.x[2:] * (t - o.t) - xy))
-        if d < radius_m and d < own:
-            return True
-    return False
+    others = [o for o in tk.tracks if o.label not in (None, label) and not o.aerial and t - o.t_lidar < 0.3]
+    d = np.linalg.norm(tk.predicted_xy(t, others) - xy, axis=1)
+    return bool(np.any((d < radius_m) & (d < own)))
