@@ -12,7 +12,11 @@ rate (the robot's own label on an entry within 0.6 m), located robot-frames — 
 ones too) and once over the entries sent on the referee map (with evidence: a robot whose only entry is a
 prediction is not located there); and over all frames the fraction in
 which one robot is reported twice (two entries within 0.6 m of a robot, nearer to it than to any other; "named":
-counting only the labelled entries with evidence, which go on the referee map).
+counting only the labelled entries with evidence, which go on the referee map). Beside them, over **every** visible
+robot-frame beyond 15 m (an unlocated one counts as not within any error): "p95 vis", the error within which 95 % of
+them are located ("inf": fewer than 95 % are located at all), and the share within 0.3 m; and per seed the tail's
+make-up: the entry's source (lidar / depth / ground / predicted) and the cameras that see the robot, as the share of
+the errors at or above the p95.
 
 Family A (tuning): red station, tele aimed at (0.75 L, 0.42 W), 8 robots, seeds 1-3. Family B (held out, never
 tuned on): blue station, 12 mm tele at its own aim point, 10 robots, seeds 11-12.
@@ -98,13 +102,21 @@ def main(argv: list[str]) -> int:
     print("all: the label's entry, predicted ones too; sent: only entries with evidence (the referee map): a robot whose only entry is a prediction is not located")
     print(f"{'fam':>3} {'seed':>4} | {'p95 m wide':>10} {'wide+tele':>9} {'change':>7} | {'sent p95 wide':>13} {'w+t':>5} {'change':>7} | {'median wide':>11} {'w+t':>6} | "
           f"{'label % wide':>12} {'w+t':>5} | {'sent label % wide':>17} {'w+t':>5} | {'located wide':>12} {'w+t':>5} | {'sent wide':>9} {'w+t':>5} | "
-          f"{'twice % wide':>12} {'w+t':>5} | {'named twice % wide':>18} {'w+t':>5} | {'FPS wide':>8} {'w+t':>5}")  # fmt: skip
+          f"{'twice % wide':>12} {'w+t':>5} | {'named twice % wide':>18} {'w+t':>5} | {'FPS wide':>8} {'w+t':>5} | "
+          f"{'p95 vis wide':>12} {'w+t':>5} | {'sent wide':>9} {'w+t':>5} | {'<0.3 m % wide':>13} {'w+t':>5} | {'sent wide':>9} {'w+t':>5}")  # fmt: skip
     for fam, seed, w, wt in rows:
         print(f"{fam:>3} {seed:>4} | {w['p95_m']:10.2f} {wt['p95_m']:9.2f} {100 * (wt['p95_m'] / w['p95_m'] - 1):+6.0f}% | "
               f"{w['p95_sent_m']:13.2f} {wt['p95_sent_m']:5.2f} {100 * (wt['p95_sent_m'] / w['p95_sent_m'] - 1):+6.0f}% | {w['median_m']:11.3f} {wt['median_m']:6.3f} | "
               f"{w['correct_label_pct']:12.1f} {wt['correct_label_pct']:5.1f} | {w['correct_label_sent_pct']:17.1f} {wt['correct_label_sent_pct']:5.1f} | "
               f"{w['located']:5d}/{w['robot_frames']:<6d} {wt['located']:5d} | {w['located_sent']:9d} {wt['located_sent']:5d} | "
-              f"{w['twice_pct']:12.1f} {wt['twice_pct']:5.1f} | {w['twice_labelled_pct']:18.1f} {wt['twice_labelled_pct']:5.1f} | {w['fps']:8.1f} {wt['fps']:5.1f}")  # fmt: skip
+              f"{w['twice_pct']:12.1f} {wt['twice_pct']:5.1f} | {w['twice_labelled_pct']:18.1f} {wt['twice_labelled_pct']:5.1f} | {w['fps']:8.1f} {wt['fps']:5.1f} | "
+              f"{w['p95_visible_m']:12.2f} {wt['p95_visible_m']:5.2f} | {w['p95_visible_sent_m']:9.2f} {wt['p95_visible_sent_m']:5.2f} | "
+              f"{w['within_0p3_pct']:13.1f} {wt['within_0p3_pct']:5.1f} | {w['within_0p3_sent_pct']:9.1f} {wt['within_0p3_sent_pct']:5.1f}")  # fmt: skip
+    print("the sent tail (errors at or above the sent p95) by the entry's source and the cameras seeing the robot: share (entries, their p95 m)")
+    for fam, seed, w, wt in rows:
+        for name, b in (("wide", w), ("w+t", wt)):
+            parts = sorted(b["tail_sources_sent"].items(), key=lambda kv: -kv[1][2])
+            print(f"{fam:>3} {seed:>4} {name:>4}: " + "; ".join(f"{k} {100 * share:.0f} % ({m}, {q:.2f})" for k, (m, q, share) in parts))
     for fam in dict.fromkeys(f for f, *_ in rows):
         sel = [(w, wt) for f, _, w, wt in rows if f == fam]
         for key, what in (("p95_m", "all"), ("p95_sent_m", "sent")):

@@ -162,11 +162,19 @@ def band_scores(results: Iterable[dict], truth_by_frame: dict[str, dict], origin
     * the same over the entries sent on the referee map only (labelled, with evidence this frame: not
       ``predicted``): ``p95_sent_m``, ``median_sent_m``, ``located_sent``, ``correct_label_sent_pct`` — a robot
       whose only entry is a prediction is not located there;
+    * ``p95_visible_m`` / ``p95_visible_sent_m``: the same errors over **every** visible robot-frame of the band,
+      an unlocated one counting as not within any error (inf): the error within which 95 % of the visible
+      robot-frames are located (inf when fewer than 95 % are located at all); ``within_0p3_pct`` /
+      ``within_0p3_sent_pct``: visible robot-frames whose label's entry is within 0.3 m;
+    * ``tail_sources`` / ``tail_sources_sent``: the located errors by kind — the entry's ``source`` and the cameras
+      the robot is visible in (``"depth cam0+cam1"``) — as ``(entries, their p95, share of the errors at or above
+      the band's p95)``: where the tail comes from;
     * ``twice_pct``: frames in which some true robot (any range) has two output entries within ``tol_m`` that are
       nearer to it than to any other true robot — one robot reported twice; ``twice_labelled_pct``: the same
       counting only labelled entries with evidence this frame (those sent on the referee map)."""
     o = np.asarray(origin_xy, float)[:2]
     err, err_sent, n, right, right_sent, frames, twice, twice_named = [], [], 0, 0, 0, 0, 0, 0
+    kind, kind_sent = [], []  # per located error: "<source> <cameras seeing the robot>" (the tail's make-up)
     for res in results:
         tr = truth_by_frame.get(res["frame"])
         if tr is None:
@@ -192,16 +200,31 @@ def band_scores(results: Iterable[dict], truth_by_frame: dict[str, dict], origin
             i = entry.get(r["label"])
             if i is not None:
                 err.append(float(D[i, k]))
+                kind.append(f"{res['robots'][i].get('source')} {'+'.join(r.get('visible_in', [])) or '-'}")
                 right += D[i, k] <= tol_m
                 if sent[i]:
                     err_sent.append(float(D[i, k]))
+                    kind_sent.append(kind[-1])
                     right_sent += D[i, k] <= tol_m
     e, es = np.asarray(err), np.asarray(err_sent)
 
     def pct(a, b):
         return 100.0 * a / b if b else None
 
+    def tail_sources(e_located, kinds):
+        """kind -> (entries, their p95, share of the entries at or above the band's p95)."""
+        if not len(e_located):
+            return {}
+        kinds = np.asarray(kinds)
+        tail = e_located >= np.percentile(e_located, 95)
+        return {k: (int((kinds == k).sum()), float(np.percentile(e_located[kinds == k], 95)), float((tail & (kinds == k)).sum() / tail.sum())) for k in sorted(set(kinds))}
+
+    def p95_counting_missing(e_located):
+        return float(np.sort(np.r_[e_located, np.full(n - len(e_located), np.inf)])[int(np.ceil(0.95 * n)) - 1]) if n else None
+
     return {"robot_frames": n, "located": len(e), "median_m": float(np.median(e)) if len(e) else None, "p95_m": float(np.percentile(e, 95)) if len(e) else None,
             "correct_label_pct": pct(right, n), "located_sent": len(es), "median_sent_m": float(np.median(es)) if len(es) else None,
             "p95_sent_m": float(np.percentile(es, 95)) if len(es) else None, "correct_label_sent_pct": pct(right_sent, n),
+            "p95_visible_m": p95_counting_missing(e), "p95_visible_sent_m": p95_counting_missing(es),
+            "tail_sources": tail_sources(e, kind), "tail_sources_sent": tail_sources(es, kind_sent), "within_0p3_pct": pct(int((e <= 0.3).sum()), n), "within_0p3_sent_pct": pct(int((es <= 0.3).sum()), n),
             "twice_pct": pct(twice, frames), "twice_labelled_pct": pct(twice_named, frames), "frames": frames}  # fmt: skip

@@ -256,3 +256,22 @@ def test_band_scores_a_robot_whose_only_entry_is_a_prediction_is_not_located_on_
     assert b["median_sent_m"] == pytest.approx(0.1) and b["p95_sent_m"] == pytest.approx(0.1)
     assert b["p95_m"] == pytest.approx(0.1 + 0.95 * 1.9)  # blue_1's measured entry (0.1 m), blue_2's prediction (2 m)
     assert b["twice_pct"] == 100.0 and b["twice_labelled_pct"] == 0.0  # blue_1 twice, once on the map
+    # every visible robot-frame, an unlocated one as inf: 95 % of the two need both located -> blue_2's 2 m, and inf
+    # on the map (blue_2 is not there); within 0.3 m: blue_1 only, in both
+    assert b["p95_visible_m"] == pytest.approx(2.0) and b["p95_visible_sent_m"] == np.inf
+    assert b["within_0p3_pct"] == 50.0 and b["within_0p3_sent_pct"] == 50.0
+    assert b["tail_sources"] == {"lidar cam0": (1, pytest.approx(0.1), 0.0), "predicted cam0": (1, pytest.approx(2.0), 1.0)}
+
+
+def test_band_scores_p95_over_visible_robot_frames_counts_a_missing_one_as_inf():
+    """20 visible robot-frames, 19 located at 0.01 .. 0.19 m: the 95th of 20 is the 19th -> 0.19 m; one more
+    missing (18 located) -> inf; the located-only p95 does not see the misses."""
+    from radarcal.runtime.evaluation import band_scores
+
+    def scores(n_located):
+        truth = {f"f{i}": {"robots": [{"label": "blue_1", "p_field": [20.0, 5.0, 0.0], "visible_in": ["cam0"]}]} for i in range(20)}
+        res = [{"frame": f"f{i}", "robots": [{"label": "blue_1", "x": 20.0 + 0.01 * (i + 1), "y": 5.0, "source": "lidar"}] if i < n_located else []} for i in range(20)]
+        return band_scores(res, truth, (0.0, 5.0), 15.0, seen_by="cam0")
+
+    assert scores(19)["p95_visible_m"] == pytest.approx(0.19) and scores(20)["p95_visible_m"] == pytest.approx(0.19)
+    assert scores(18)["p95_visible_m"] == np.inf and scores(18)["p95_m"] < 0.19
