@@ -164,9 +164,10 @@ def test_no_ground_ray_from_a_foot_hidden_by_a_robot_in_front():
     assert no_ground_ray(np.array([[800, 300, 860, 330]], float), boxes, 0.55).tolist() == [True]  # flat: a hidden robot's top
 
 
-def test_box_depth_excludes_a_nearer_robot_whose_box_is_not_located():
-    """B11 of the benchmark: a robot half hidden behind a nearer one whose box a LiDAR track explains (so only the
-    far box is located) took the near robot's depth; every box of the frame must count as an occluder."""
+def _near_and_far_robot(near_from_z: float = 0.0):
+    """The sample replay's camera, a 1.2 m robot 11 m out on its axis (no returns and no pixels below
+    ``near_from_z``: a terrain edge hides its foot) and a 0.45 m one 12 m out behind it: (pipeline with that
+    cloud, boxes [near, far], their camera-frame depths)."""
     from pathlib import Path
 
     from runtime_scene import robot_cloud
@@ -185,24 +186,43 @@ def test_box_depth_excludes_a_nearer_robot_whose_box_is_not_located():
     ahead = T_field_cam[:2, 2] / np.linalg.norm(T_field_cam[:2, 2])  # the optical axis on the field
     c_near, c_far = eye + 11.0 * ahead, eye + 12.0 * ahead + 0.1 * np.array([-ahead[1], ahead[0]])
     assert np.allclose(b.field().surface_z(np.array([c_near, c_far])), 0.0)
-    pts = np.vstack([robot_cloud(c_near, height=1.2, viewer_xy=eye), robot_cloud(c_far, viewer_xy=eye, rng=np.random.default_rng(1))])
+    near = robot_cloud(c_near, height=1.2, viewer_xy=eye)
+    pts = np.vstack([near[near[:, 2] >= near_from_z], robot_cloud(c_far, viewer_xy=eye, rng=np.random.default_rng(1))])
     T_lidar_field = invert_T(T_field_cam @ b.T("cam0", "lidar0"))
     pipe.add_cloud(0.0, transform_points(T_lidar_field, pts))
     T_cam_field = invert_T(T_field_cam)
 
-    def box(c, h):
+    def box(c, z0, h):
         ang = np.linspace(0, 2 * np.pi, 32)
-        p = np.vstack([np.column_stack([c[0] + 0.25 * np.cos(ang), c[1] + 0.25 * np.sin(ang), np.full(32, z)]) for z in (0.0, h)])
+        p = np.vstack([np.column_stack([c[0] + 0.25 * np.cos(ang), c[1] + 0.25 * np.sin(ang), np.full(32, z)]) for z in (z0, h)])
         uv, _ = pipe.camera.project(transform_points(T_cam_field, p))
         return np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[:, 1].max()])
 
-    boxes = np.array([box(c_near, 1.2), box(c_far, 0.45)])
-    assert boxes[0, 3] > boxes[1, 3] and boxes[0, 1] < boxes[1, 3]  # the near robot hides the far one's lower part
+    boxes = np.array([box(c_near, near_from_z, 1.2), box(c_far, 0.0, 0.45)])
     z_near, z_far = transform_points(T_cam_field, np.array([[*(c - 0.2 * ahead), 0.3] for c in (c_near, c_far)]))[:, 2]
+    return pipe, boxes, (z_near, z_far)
+
+
+def test_box_depth_excludes_a_nearer_robot_whose_box_is_not_located():
+    """B11 of the benchmark: a robot half hidden behind a nearer one whose box a LiDAR track explains (so only the
+    far box is located) took the near robot's depth; every box of the frame must count as an occluder."""
+    pipe, boxes, (z_near, z_far) = _near_and_far_robot()
+    assert boxes[0, 3] > boxes[1, 3] and boxes[0, 1] < boxes[1, 3]  # the near robot hides the far one's lower part
     alone, _ = pipe._box_depths(boxes[1:], 0.0)  # the near box not given: its robot's pixels win
     with_frame, _ = pipe._box_depths(boxes[1:], 0.0, frame_boxes=boxes)
     assert abs(alone[0] - z_near) < 0.3
     assert abs(with_frame[0] - z_far) < 0.3
+
+
+def test_box_depth_orders_overlapping_boxes_by_their_own_lidar_depth():
+    """Families A / B beyond 15 m: most box depths more than 0.4 m short were a robot in front whose box bottom
+    is not lower (a terrain edge hides its foot): the bottom-edge order called it the one behind, so its pixels
+    stayed in the far box. The depths of the boxes' own pixels say which is in front; the near box keeps its own."""
+    pipe, boxes, (z_near, z_far) = _near_and_far_robot(near_from_z=0.35)
+    assert boxes[0, 3] < boxes[1, 3] - 2 and boxes[0, 1] < boxes[1, 1] < boxes[0, 3]  # near box: bottom higher, overlapping
+    assert not boxes_in_front(boxes[1:], boxes).any()  # by the bottom edges the near robot is behind
+    depth, _ = pipe._box_depths(boxes, 0.0)
+    assert abs(depth[1] - z_far) < 0.3 and abs(depth[0] - z_near) < 0.3
 
 
 def test_a_lost_track_does_not_jump_farther_than_a_robot_can_move():
