@@ -270,7 +270,7 @@ class Pipeline:
 
         def own_depth(box, others):
             bd = queue.depth_in_box(box, t, max_age_s=self.cfg.depth_max_age_s, exclude=others if len(others) else None)
-            return bd.depth if bd is not None else np.nan
+            return bd.depth if bd is not None and bd.n >= 3 else np.nan  # one or two returns: maybe the background
 
         need = np.flatnonzero(overlap.any(axis=0))
         own_f = np.full(len(ff), np.nan)
