@@ -257,7 +257,7 @@ class Pipeline:
         two overlapping boxes whose own pixels (the overlap excluded) are more than ``max(0.35 m, 3 %)`` apart in
         depth are in that order, whatever their bottom edges say — a nearer robot whose bottom a terrain edge
         hides has its box bottom higher than the robot behind it (both cameras of family A / B: most of the box
-        depths over 0.4 m short beyond 15 m). Without points of its own a box keeps the bottom-edge order."""
+        depths over 0.4 m short beyond 15 m). A box without 3 returns of its own keeps the bottom-edge order."""
         b = np.asarray(boxes, float).reshape(-1, 1, 4)
         f = np.asarray(frame_boxes, float).reshape(1, -1, 4)
         front = boxes_in_front(boxes, frame_boxes)
