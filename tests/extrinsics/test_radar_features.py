@@ -143,20 +143,6 @@ def test_rcs_scaled_association_takes_split_frames_drops_ghosts():
     assert {tuple(p) for p in pairs.tolist()} == {(0, 0), (1, 2), (1, 3)}
 
 
-def test_association_gate_is_the_outlier_rules_three_sigma():
-    """A detection is taken by its reflector only within the outlier rule's 3 of its own RCS-scaled sigma: with the
-    unit sigma 5 cm and a -10 dB echo (sigma 15.8 cm), one 2.8 sigma off is taken, one 3.2 sigma off is not (the gate
-    was 3.4 sigma: weak tripod-foot clutter and heavy-tail frames beside a turned reflector's echo came in)."""
-    from radarcal.extrinsics.radar.rig import K_SIGMA, _associate
-
-    assert K_SIGMA == 3.0
-    sig = 0.05 / np.sqrt(0.1)
-    pred = np.array([[3.0, 1.0], [3.0, -1.5]])
-    m = np.array([[3.0 + 2.8 * sig, 1.0], [3.0, -1.5 - 3.2 * sig]])
-    pairs = _associate(pred, m, np.array([-2.0, -2.0]), np.ones(2), gate=0.35, sigma_unit=0.05, rcs_ref=8.0)
-    assert pairs.tolist() == [[0, 0]]
-
-
 def test_multipath_of_names_the_reflector_on_whose_echo_path_a_detection_lies():
     """A reflector 3 m ahead, 1.1 m up, radar plane 0.5 m: its direct echo and its ground-mirror ghost (slant range
     with dz = 1.6 m) lie on its echo path; a detection 0.5 m across the bearing or 1 m beyond the mirror does not."""
