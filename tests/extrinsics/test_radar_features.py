@@ -217,3 +217,23 @@ def test_a_merged_clutter_cluster_does_not_make_a_single_frame_a_ghost():
     m, c = aggregate_frames(  # five frames of two reflectors and a one-frame ghost: still dropped
         np.concatenate([np.repeat([[2.0, 0.0], [3.0, 1.0]], 5, axis=0), [[3.6, -0.2]]]))
     assert c.tolist() == [5, 5]
+
+
+def test_clean_oracle_keeps_only_reflector_echoes_and_the_excess_names_the_sessions():
+    """The benchmark's diagnosis tools: ``only_reflector_echoes`` leaves exactly the detections labelled as a
+    reflector's echo, with their labels and sigmas still aligned; ``excess_by_session`` ranks sessions by their share
+    of ``sum(ours^2 - ideal^2)``."""
+    from benchmarks.radar_lidar import excess_by_session, only_reflector_echoes
+    from radarcal.synth.radar import feature_spec, generate_radar_session
+
+    ses = generate_radar_session(feature_spec(600, "check"))
+    before = [np.array(t["detection_label"]) for t in ses.truth["scenes"]]
+    only_reflector_echoes(ses)
+    for sc, tr, lab in zip(ses.scenes, ses.truth["scenes"], before):
+        n = int((lab >= 0).sum())
+        assert 0 < n < len(lab)  # the session had clutter, ghosts or multipath, and echoes
+        assert len(sc["radar"]["radar"]) == len(sc["radar"]["xy"]) == len(sc["radar"]["rcs"]) == len(tr["detection_sigma_m"]) == n
+        assert min(tr["detection_label"]) >= 0 and all(v is not None for v in tr["detection_sigma_m"])
+    rs = [{"deg": 2.0, "ideal_deg": 1.0}, {"deg": 1.0, "ideal_deg": 1.5}, {"deg": 3.0, "ideal_deg": 1.0}]
+    ex = excess_by_session([7, 8, 9], rs)
+    assert [s for s, _ in ex] == [9, 7, 8] and [f for _, f in ex] == pytest.approx([8 / 9.75, 3 / 9.75, -1.25 / 9.75])

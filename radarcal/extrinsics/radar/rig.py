@@ -136,17 +136,17 @@ GHOST_DB = 4.0  # dB: a detection this much weaker than another of the same refl
 def _associate(pred: np.ndarray, m: np.ndarray, rc, counts: np.ndarray, gate: float, sigma_unit: float, rcs_ref: float) -> np.ndarray:
     """Detections ``m`` (frame averages of ``counts`` frames, RCS ``rc`` or None) to predicted reflectors ``pred``:
     each detection to its nearest reflector when closer than 3.4 of its own sigma (99.7 %, 2 dof), ``sigma_unit`` /
-    sqrt(RCS weight x frames) -- a weak echo's noise is larger, so a turned reflector's scattered frames all count,
-    at their small weight -- at least ``gate``, at most :data:`MAX_GATE`. Of the detections taken by one reflector,
-    those more than :data:`GHOST_DB` weaker than the strongest are not its echo (one reflector returns one power; a
-    multipath ghost or clutter beside it is weaker) and dropped.
+    sqrt(RCS weight x frames) (:func:`rcs_weights`) -- a weak echo's noise is larger, so a turned reflector's
+    scattered frames all count, at their small weight -- at least ``gate``, at most :data:`MAX_GATE`. Of the
+    detections taken by one reflector, those more than :data:`GHOST_DB` weaker than the strongest are not its echo
+    (one reflector returns one power; a multipath ghost or clutter beside it is weaker) and dropped.
     Returns (K,2) index pairs (reflector, detection); a reflector may take several detections (a cluster split)."""
     if len(pred) == 0 or len(m) == 0:
         return np.zeros((0, 2), int)
     d = np.linalg.norm(m[:, None, :] - pred[None, :, :], axis=2)
     near = np.argmin(d, axis=1)
     dmin = d[np.arange(len(m)), near]
-    w = np.ones(len(m)) if rc is None else np.clip(10 ** ((np.where(np.isfinite(rc), rc, rcs_ref) - rcs_ref) / 10), 1e-3, 1.0)
+    w = np.ones(len(m)) if rc is None else rcs_weights(rc, ref=rcs_ref)
     sig = sigma_unit / np.sqrt(w * np.maximum(counts, 1))
     ok = dmin < np.clip(3.4 * sig, gate, MAX_GATE)
     if rc is not None:
