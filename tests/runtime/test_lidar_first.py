@@ -51,6 +51,19 @@ def test_static_filter_keeps_robots_drops_field_structures_and_outside():
     np.testing.assert_allclose(p, pts[idx], atol=1e-4)
 
 
+def test_wall_margin_covers_what_is_asked_and_at_most_one_cell_more():
+    """A 0.6 m step (a raised area's wall at x = 10 m): a point 0.3 m up beside it belongs to the field within the
+    margin asked for, and is dynamic one cell (8 cm) beyond it (the old five margins reached up to 0.12 m further:
+    robots beside raised areas were removed)."""
+    from radarcal.runtime.background import FieldOccupancy
+
+    occ = FieldOccupancy(lambda xy: np.where(xy[:, 0] >= 10.0, 0.6, 0.0), [], (0.0, 0.0, 20.0, 4.0), res=0.08)
+    for margin in (0.1, 0.2, 0.27, 0.35, 0.45):
+        d = np.array([margin - 0.01, margin + occ.res + 0.01])
+        p = np.column_stack([10.0 - d, np.full(2, 2.0), np.full(2, 0.3)])
+        np.testing.assert_array_equal(occ.contains(p, tol_z=0.05, margin_xy=margin), [True, False], err_msg=f"margin {margin}")
+
+
 def test_ground_fit_removes_a_calibration_tilt():
     """A 1 deg pitch error lifts the far ground by ~45 cm: with the fitted plane it is still ground."""
     rng = np.random.default_rng(2)
