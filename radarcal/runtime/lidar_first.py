@@ -56,9 +56,20 @@ class LidarFirstConfig:
     aerial_sigma_m: float = 0.25
     exclusion_m: float = 0.6  # output tracks nearer than this are one robot (a robot is <= 0.6 m across): one is measured
     lidar_only: bool = False  # no box fixes (LiDAR only, `--localise lidar`): only clusters measure the tracks
-    # Tracker3D white acceleration (m/s^2) with box fixes (auto), clusters only: far centres' 0.1-0.2 m jitter goes
-    # less into the velocity at 1.5, but with a camera 1.5 made the sample replay worse (measured: docs/runtime.md)
-    accel_sigma: tuple[float, float] = (3.0, 1.5)
+    # Tracker3D white acceleration (m/s^2) with box fixes (auto); with a camera a lower density made the sample
+    # replay worse (measured: docs/runtime.md)
+    accel_sigma: float = 3.0
+    # clusters only (LiDAR only, `--localise lidar`): an interacting multiple model of two densities, so far centres'
+    # 0.1-0.2 m jitter stays out of a cruising robot's velocity and a hard manoeuvre still moves the weight to the high
+    # one (was one density of 1.5 m/s^2; measured: docs/runtime.md)
+    lidar_only_accel: tuple[float, float] = (0.5, 2.0)
+    imm_sojourn_s: float = 6.0
+
+    def tracker(self) -> Tracker3D:
+        """The 3D tracker this configuration runs: box fixes and clusters (one density), or clusters only (IMM)."""
+        if self.lidar_only:
+            return Tracker3D(imm_accel=self.lidar_only_accel, imm_sojourn_s=self.imm_sojourn_s)
+        return Tracker3D(accel_sigma=self.accel_sigma)
 
 
 def point_times(n: int, t_cloud: float, sweep_s: float, latency_s: float) -> np.ndarray:
@@ -82,7 +93,7 @@ class LidarFirst:
         bg = VoxelBackground((0.0, 0.0, -0.5, L, W, 3.5), self.cfg.bg_voxel_m, self.cfg.bg_tau_s, self.cfg.bg_hits) if self.cfg.learn_background else None
         self.filter = StaticFilter(self.T_field_lidar, occ, bg, (inset, inset, L - inset, W - inset),
                                    sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m)  # fmt: skip
-        self.tracker = tracker or Tracker3D(accel_sigma=self.cfg.accel_sigma[int(self.cfg.lidar_only)])
+        self.tracker = tracker or self.cfg.tracker()
         # without box fixes a far robot seen only by a few returns gets a track from them (with box fixes its box
         # does: sparse-born tracks there took box-only fixes and labels of other robots, measured: docs/runtime.md)
         self.tracker.sparse_births = self.cfg.lidar_only

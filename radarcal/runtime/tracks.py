@@ -144,6 +144,7 @@ class Track3D:
     last_box: int | None = None  # index of the box matched in the current frame (identity)
     pending: tuple | None = None  # (xy, t) of a box fix that disagreed with a LiDAR-lost track
     origin: np.ndarray | None = None  # where the track started (a track that never moved may be background)
+    modes: tuple | None = None  # interacting multiple models (Tracker3D.imm_accel): (X (M,4), P (M,4,4), mu (M,), x, P they combine to)
 
     outranked_t: float = -np.inf  # frame time at which another entry of the same robot outranked it (LidarFirst.one_per_robot)
     ever_moved: bool = False
@@ -201,6 +202,24 @@ def _cv_predict(x: np.ndarray, P: np.ndarray, dt: float, q: float, vmax: float) 
     return x, F @ P @ F.T + Q
 
 
+def _kf_update(x: np.ndarray, P: np.ndarray, xy: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Kalman update of a constant-velocity state by a field (x, y) fix of isotropic ``sigma`` (m); returns the state,
+    its covariance and the fix's log-likelihood under the prediction."""
+    S = P[:2, :2] + np.eye(2) * sigma**2
+    Si = np.linalg.inv(S)
+    y = xy - x[:2]
+    K = P[:, :2] @ Si
+    P = (np.eye(4) - K @ np.eye(2, 4)) @ P
+    return x + K @ y, 0.5 * (P + P.T), float(-0.5 * y @ Si @ y - 0.5 * np.log(np.linalg.det(S)) - np.log(2 * np.pi))
+
+
+def _combine(X: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Moment-matched mean and covariance of the Gaussian mixture (M,4) ``X``, (M,4,4) ``Ps``, weights (M,) ``w``."""
+    x = w @ X
+    d = X - x
+    return x, np.einsum("m,mkl->kl", w, Ps) + np.einsum("m,mk,ml->kl", w, d, d)
+
+
 class Tracker3D:
     """Constant-velocity Kalman tracks of LiDAR clusters and box fixes, Hungarian assignment
     (:func:`scipy.optimize.linear_sum_assignment`), states tentative -> confirmed -> lost.
@@ -213,11 +232,19 @@ class Tracker3D:
     * A track without a measurement for ``lost_after_s`` is *lost*: still kept and predicted (flagged), never written
       as seen (cause 5); dropped after ``max_coast_s``.
     * Measurements carry their own time (the mean firing time of a cluster's points): the track is predicted to it,
-      updated, and predicted on to the frame time (motion compensation of late clouds, cause 1)."""
+      updated, and predicted on to the frame time (motion compensation of late clouds, cause 1).
+    * ``imm_accel`` (white accelerations, m/s^2; None: one model of ``accel_sigma``): an interacting multiple model
+      filter, one constant-velocity model per density, switching with mean sojourn ``imm_sojourn_s``: a cruising
+      robot is smoothed by the low density (far centres' 0.1-0.2 m jitter stays out of the velocity), a hard
+      manoeuvre moves the weight to the high one within a few fixes. ``x``/``P`` are always the mixture's moments;
+      a state changed outside the filter (a relocation, coasting damping) restarts the models from it."""
 
     def __init__(self, accel_sigma: float = 3.0, gate_m: float = 0.8, confirm_hits: int = 2, confirm_box_hits: int = 3, tentative_s: float = 0.5,
-                 lost_after_s: float = 0.35, max_coast_s: float = 1.5, vmax: float = 4.5, init_speed_sigma: float = 1.5):  # fmt: skip
+                 lost_after_s: float = 0.35, max_coast_s: float = 1.5, vmax: float = 4.5, init_speed_sigma: float = 1.5,
+                 imm_accel: tuple[float, ...] | None = None, imm_sojourn_s: float = 1.0):  # fmt: skip
         self.q = float(accel_sigma) ** 2
+        self.imm_q = None if not imm_accel else np.asarray(imm_accel, float) ** 2
+        self.imm_sojourn_s = float(imm_sojourn_s)
         self.gate_m = float(gate_m)
         self.confirm_hits = int(confirm_hits)
         self.confirm_box_hits = int(confirm_box_hits)
@@ -242,9 +269,35 @@ class Tracker3D:
     # --- primitives ---
     def predict_to(self, tr: Track3D, t: float) -> None:
         dt = t - tr.t
-        if dt > 0:
+        if dt <= 0:
+            return
+        if self.imm_q is None:
             tr.x, tr.P = _cv_predict(tr.x, tr.P, dt, self.q, self.vmax)
-            tr.t = t
+        else:
+            X, Ps, mu = self._modes(tr)
+            M = len(mu)
+            p = -np.expm1(-dt / self.imm_sojourn_s)  # a switch within dt
+            Pi = np.full((M, M), p / max(M - 1, 1)) + np.eye(M) * (1.0 - p - p / max(M - 1, 1))  # Pi[i, j]: i -> j
+            c = mu @ Pi
+            w = Pi * mu[:, None] / np.maximum(c[None, :], 1e-300)  # w[i, j]: mode i given mode j after the step
+            for j in range(M):
+                x0, P0 = _combine(X, Ps, w[:, j])
+                X[j], Ps[j] = _cv_predict(x0, P0, dt, float(self.imm_q[j]), self.vmax)
+            self._set_modes(tr, X, Ps, c / c.sum())
+        tr.t = t
+
+    def _modes(self, tr: Track3D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The track's IMM models (copies), restarted from ``x``/``P`` when those were changed outside the filter."""
+        m = tr.modes
+        M = len(self.imm_q)
+        if m is None or not (np.array_equal(m[3], tr.x) and np.array_equal(m[4], tr.P)):
+            mu = m[2].copy() if m is not None else np.full(M, 1.0 / M)
+            return np.repeat(tr.x[None], M, 0), np.repeat(tr.P[None], M, 0), mu
+        return m[0].copy(), m[1].copy(), m[2].copy()
+
+    def _set_modes(self, tr: Track3D, X: np.ndarray, Ps: np.ndarray, mu: np.ndarray) -> None:
+        tr.x, tr.P = _combine(X, Ps, mu)
+        tr.modes = (X, Ps, mu, tr.x.copy(), tr.P.copy())
 
     def predicted_xy(self, t: float, tracks: list[Track3D] | None = None) -> np.ndarray:
         """(T,2) positions of ``tracks`` (default: all) extrapolated to ``t`` (states untouched)."""
@@ -277,12 +330,15 @@ class Tracker3D:
             xy = xy + tr.x[2:] * (tr.t - t)
             t = tr.t
         self.predict_to(tr, t)
-        R = np.eye(2) * sigma**2
-        S = tr.P[:2, :2] + R
-        K = tr.P[:, :2] @ np.linalg.inv(S)
-        tr.x = tr.x + K @ (xy - tr.x[:2])
-        tr.P = (np.eye(4) - K @ np.eye(2, 4)) @ tr.P
-        tr.P = 0.5 * (tr.P + tr.P.T)
+        if self.imm_q is None:
+            tr.x, tr.P, _ = _kf_update(tr.x, tr.P, xy, sigma)
+        else:
+            X, Ps, mu = self._modes(tr)
+            ll = np.zeros(len(mu))
+            for j in range(len(mu)):
+                X[j], Ps[j], ll[j] = _kf_update(X[j], Ps[j], xy, sigma)
+            w = mu * np.exp(ll - ll.max())
+            self._set_modes(tr, X, Ps, w / w.sum())
         tr.z = z if tr.hits == 0 else 0.7 * tr.z + 0.3 * z
         tr.t_seen = max(tr.t_seen, t)
         tr.hits += 1
