@@ -199,7 +199,8 @@ class StaticFilter:
 
     ground_fit: bool = True
     plane: np.ndarray | None = None  # (a, b, c): the flat ground as the cloud sees it, z = a x + b y + c
-    plane_rms: float = 0.05
+    plane_rms: float = 0.03  # rms residual of the ground returns about the plane (m), smoothed over clouds
+    min_rms_m: float = 0.03  # floor of plane_rms in the tolerance (LidarFirst: 1 cm LiDAR only)
 
     def _fit_ground(self, p: np.ndarray, surf: np.ndarray) -> None:
         """Fit the flat ground (cells where the surface is z = 0) seen in this cloud: a calibration tilt of a few
@@ -227,13 +228,17 @@ class StaticFilter:
         self.plane_rms = rms if first else 0.8 * self.plane_rms + 0.2 * rms
 
     _thr: np.ndarray | None = None  # column heights (see FieldOccupancy.column_heights), built on first use
+    _thr_rms: float = np.nan  # the plane_rms they were built for (rebuilt when it moves by more than 20 %)
 
     def _tolerances(self):
         """Height tolerance and wall margin as functions of range: with the ground fitted, the calibration tilt is
-        removed and what is left is the fit residual (floored at 3 cm) and a tenth of the rotation sigma."""
+        removed and what is left is the fit's rms residual (:attr:`plane_rms`, floored at ``min_rms_m``) and a tenth
+        of the rotation sigma. (Until 2026-12 a fixed 3 cm stood for the residual, ~9 mm on `synth match`: 0.115
+        instead of 0.08 m at 24 m, and a far robot's lowest returns, often all it gave, went with the ground.)"""
         k, base = self.k_sigma, self.base_tol_m
         if self.ground_fit:
-            tol = lambda r: base + k * range_sigma(r, 0.1 * self.sigma_rot_rad, 0.0, 0.03)  # noqa: E731
+            rms = max(self.plane_rms, self.min_rms_m)
+            tol = lambda r: base + k * range_sigma(r, 0.1 * self.sigma_rot_rad, 0.0, rms)  # noqa: E731
         else:
             tol = lambda r: base + k * range_sigma(r, self.sigma_rot_rad, self.sigma_trans_m)  # noqa: E731
         margin = lambda r: 0.08 + k * range_sigma(r, self.sigma_rot_rad, self.sigma_trans_m)  # noqa: E731
@@ -247,9 +252,6 @@ class StaticFilter:
         With ``ground_fit`` heights are measured from the ground plane fitted to the clouds (:meth:`_fit_ground`),
         so the calibration's tilt does not eat into the tolerance. Cost: a transform, a crop, one raster gather."""
         occ = self.occupancy
-        if self._thr is None:
-            self._thr = occ.column_heights(np.asarray(self.T_field_lidar, float)[:2, 3], *self._tolerances())
-            self._top = (occ.surface + self.max_height_m).astype(np.float32)
         p = transform_f32(self.T_field_lidar, points_lidar)
         x0, y0, x1, y1 = self.crop
         px, py = p[:, 0], p[:, 1]
@@ -258,9 +260,9 @@ class StaticFilter:
         # the few points outside it)
         iy = ((py - occ.y0) * (1.0 / occ.res)).astype(np.int32)
         ix = ((px - occ.x0) * (1.0 / occ.res)).astype(np.int32)
-        np.clip(iy, 0, self._thr.shape[0] - 1, out=iy)
-        np.clip(ix, 0, self._thr.shape[1] - 1, out=ix)
-        cell = iy * self._thr.shape[1] + ix
+        np.clip(iy, 0, occ.surface.shape[0] - 1, out=iy)
+        np.clip(ix, 0, occ.surface.shape[1] - 1, out=ix)
+        cell = iy * occ.surface.shape[1] + ix
         z = p[:, 2]
         if self.ground_fit:
             sub = np.flatnonzero(inside)
@@ -269,6 +271,10 @@ class StaticFilter:
             if self.plane is not None:
                 a, b, c = (np.float32(v) for v in self.plane)
                 z = z - (a * px + b * py + c)
+        if self._thr is None or not abs(self.plane_rms - self._thr_rms) <= 0.2 * self._thr_rms:
+            self._thr = occ.column_heights(np.asarray(self.T_field_lidar, float)[:2, 3], *self._tolerances())
+            self._thr_rms = self.plane_rms
+            self._top = (occ.surface + self.max_height_m).astype(np.float32)
         inside &= (z >= self._thr.ravel()[cell]) & (z <= self._top.ravel()[cell])
         idx = np.flatnonzero(inside)
         p = p[idx]

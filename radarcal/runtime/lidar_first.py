@@ -43,6 +43,10 @@ class LidarFirstConfig:
     crop_inset_m: float = 0.05
     sigma_rot_deg: float = 0.25  # calibration sigma the tolerances follow (bundle sigma when it has one)
     sigma_trans_m: float = 0.03
+    # floor (m) of the ground fit's rms residual in the static filter's height tolerance (StaticFilter.min_rms_m),
+    # with box fixes / LiDAR only: the measured ~9 mm lets far robots' lowest returns through LiDAR only; with a
+    # camera it cost auto 0.4 points on seeds 1 and 2 (measured: docs/runtime.md), so auto keeps the old fixed 3 cm
+    ground_rms_floor_m: tuple[float, float] = (0.03, 0.01)
     compensate: bool = False  # move older window points along their track (measured worse: docs)
     seen_lidar_s: float = 0.25  # a track counts as seen by the LiDAR this long after its last cluster
     seen_box_s: float = 0.1
@@ -92,7 +96,8 @@ class LidarFirst:
         occ = field_occupancy(field_model, (-1.0, -1.0, L + 1.0, W + 1.0))
         bg = VoxelBackground((0.0, 0.0, -0.5, L, W, 3.5), self.cfg.bg_voxel_m, self.cfg.bg_tau_s, self.cfg.bg_hits) if self.cfg.learn_background else None
         self.filter = StaticFilter(self.T_field_lidar, occ, bg, (inset, inset, L - inset, W - inset),
-                                   sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m)  # fmt: skip
+                                   sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m,
+                                   min_rms_m=self.cfg.ground_rms_floor_m[int(self.cfg.lidar_only)])  # fmt: skip
         self.tracker = tracker or self.cfg.tracker()
         # without box fixes a far robot seen only by a few returns gets a track from them (with box fixes its box
         # does: sparse-born tracks there took box-only fixes and labels of other robots, measured: docs/runtime.md)

@@ -81,6 +81,25 @@ def test_ground_fit_removes_a_calibration_tilt():
     assert len(flt_nofit(pl)[1]) > 0.05 * len(ground)
 
 
+def test_height_tolerance_follows_the_ground_fit_residual():
+    """Flat ground with 5 mm noise (the fit's rms residual): a far robot's lowest returns, 9-11 cm up at 24 m, are
+    dynamic when the tolerance follows the residual (floor 1 cm, LiDAR only: 0.08 m there), not with the 3 cm floor
+    (0.115 m); the ground stays field either way."""
+    rng = np.random.default_rng(3)
+    T = make_T(np.eye(3), SENSOR)
+    ground = np.column_stack([rng.uniform(1, 27, 20000), rng.uniform(1, 14, 20000), rng.normal(0, 0.005, 20000)])
+    low = np.column_stack([np.full(20, 23.0), rng.uniform(11.3, 11.7, 20), rng.uniform(0.09, 0.11, 20)])
+    pl = transform_f32(invert_T(T), np.vstack([ground, low]))
+    for floor, robot_kept in ((0.01, True), (0.03, False)):
+        flt = _filter(T, learn=False)
+        flt.min_rms_m = floor
+        for _ in range(3):
+            _, idx, _ = flt(pl)
+        assert np.sum(idx < len(ground)) < 0.001 * len(ground), floor
+        assert (np.sum(idx >= len(ground)) == len(low)) == robot_kept, (floor, np.sum(idx >= len(ground)))
+        assert abs(flt.plane_rms - 0.005) < 0.002
+
+
 def test_learnt_background_absorbs_static_clutter_not_protected_robots():
     bg = VoxelBackground((0, 0, -0.5, 28, 15, 3.5))
     rng = np.random.default_rng(3)
