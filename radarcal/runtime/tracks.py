@@ -325,8 +325,22 @@ class Tracker3D:
         r, c = linear_sum_assignment(cost)
         return [(live[i], int(j)) for i, j in zip(r, c) if cost[i, j] < 1e6]
 
-    def _update(self, tr: Track3D, xy: np.ndarray, sigma: float, t: float, z: float, source: str) -> None:
-        if t < tr.t:  # a measurement older than the state (late cloud after a box fix): apply it at the state time
+    def _update(self, tr: Track3D, xy: np.ndarray, sigma: float, t: float, z: float, source: str) -> bool:
+        """Predict ``tr`` to ``t`` and update it with the fix ``xy`` (``sigma`` m). A track born of one cluster
+        whose second LiDAR fix is farther from the first than a robot can go (``vmax`` dt + 3 sigma of two fixes) is
+        restarted at it (velocity 0): the first cluster was off (merged with a neighbour in the run's first sweep),
+        and the jump would otherwise be read as a velocity at ``vmax`` for the next sweeps. Returns True then."""
+        if source == "lidar" and tr.hits == 1 and tr.n_lidar == 1 and tr.n_box == 0 and t > tr.t_seen:
+            reach = self.vmax * (t - tr.t_seen) + 3.0 * np.sqrt(2.0) * sigma  # two centres of about this sigma
+            if float(np.linalg.norm(xy - tr.x[:2])) > reach:
+                tr.x = np.array([xy[0], xy[1], 0.0, 0.0])
+                tr.P = np.diag([sigma**2, sigma**2, self.init_speed_sigma**2, self.init_speed_sigma**2])
+                tr.t = tr.t_seen = t  # (the next step predicts it to the frame time)
+                tr.z, tr.source, tr.modes = z, source, None
+                tr.origin = np.asarray(xy, float)[:2].copy()
+                tr.hits += 1
+                return True
+        if t < tr.t:  # a measurement older than the state (a cloud after the frame the state was predicted to): apply it at the state time
             xy = xy + tr.x[2:] * (tr.t - t)
             t = tr.t
         self.predict_to(tr, t)
@@ -343,6 +357,7 @@ class Tracker3D:
         tr.t_seen = max(tr.t_seen, t)
         tr.hits += 1
         tr.source = source
+        return False
 
     def _new(self, xy: np.ndarray, sigma: float, t: float, z: float, source: str) -> Track3D:
         P = np.diag([sigma**2, sigma**2, self.init_speed_sigma**2, self.init_speed_sigma**2])
@@ -371,12 +386,14 @@ class Tracker3D:
         live = list(self.tracks)
         tentative_penalty = np.array([0.0 if tr.state != TENTATIVE else 0.3 for tr in live])
         for tr, j in self._assign(live, centre, sigma, t, aerial, penalty=tentative_penalty):
-            self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
+            restarted = self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
             tr.t_lidar = max(tr.t_lidar, float(t[j]))
             tr.n_lidar += 1
-            tr.extent = 0.7 * tr.extent + 0.3 * extent[j]
+            tr.extent = extent[j].copy() if restarted else 0.7 * tr.extent + 0.3 * extent[j]
             tr.hull, tr.t_points = hulls[j], float(t_ref)
-            if tr.envelope is not None:
+            if restarted:  # the first cluster's points were not this robot's alone: its envelope starts again
+                tr.envelope = np.r_[hulls[j][0][:2], hulls[j][1][:2]]
+            elif tr.envelope is not None:
                 tr.envelope = np.r_[np.minimum(tr.envelope[:2], hulls[j][0][:2]), np.maximum(tr.envelope[2:], hulls[j][1][:2])]
             ids[j] = tr.id
         for j in range(K):
