@@ -425,8 +425,9 @@ class Tracker3D:
         ``sparse_births`` (LiDAR only) a component farther than ``sparse_birth_m`` from every track starts a
         tentative track, which the next sweep's component or cluster confirms — after the first ``learn_s`` only
         (before, a few returns of the referee's box and of a far robot look alike, and a static suspect born of
-        sparse returns wandered more than 1 m: a 3 s ghost on seed 5); else they never start one. Returns the track
-        id per component (-1: none took it).
+        sparse returns wandered more than 1 m: a 3 s ghost on seed 5) — except at the aerial robot's height, where
+        nothing standing on the field reaches (its few returns start a track from the first sweep; still a static
+        suspect until it moves); else they never start one. Returns the track id per component (-1: none took it).
 
         Why not the camera-fixed tracks in a pile-up: a sparse take marks the track seen by the LiDAR (no box-only
         fix for 0.3 s, its last cluster hull kept for identity), so with robots 1 m apart the box-depth fixes that
@@ -446,7 +447,7 @@ class Tracker3D:
             taken = {j for _, j in pairs}
             early = self.t0 is None or tm - self.t0 < self.learn_s  # the referee's box and a robot look alike then
             for j in range(len(centre)):
-                if not early and j not in taken and (not len(xy) or np.linalg.norm(xy - centre[j, :2], axis=1).min() >= self.sparse_birth_m):
+                if (not early or bool(aerial[j])) and j not in taken and (not len(xy) or np.linalg.norm(xy - centre[j, :2], axis=1).min() >= self.sparse_birth_m):
                     ids[j] = self._new_lidar(centre[j], float(sigma[j]), float(t[j]), bool(aerial[j]), None, None, np.r_[centre[j, :2], centre[j, :2]]).id
         for tr, j in pairs:
             if tr.id not in takers:

@@ -370,6 +370,24 @@ def test_lidar_only_sparse_components_start_a_track_but_a_fragment_beside_a_robo
     assert abs(near.x[0] - 10.0) < 0.1 and abs(far.x[0] - (22.0 + 0.5 * 3.7)) < 0.3 and abs(far.x[1] - 3.0) < 0.3
 
 
+def test_lidar_only_the_aerial_robots_few_returns_start_a_track_from_the_start():
+    """In the first ``learn_s`` a few returns on the ground start nothing (the referee's box looks the same), a few at
+    the aerial robot's height do (nothing standing on the field floats there); that track is a static suspect until
+    it moves (reported once it has flown 1 m)."""
+    rng = np.random.default_rng(9)
+    tk = Tracker3D()
+    tk.sparse_births = True
+    for k in range(12):
+        t = 0.1 * k
+        ground = [24.0 + rng.normal(0, 0.05), 3.0 + rng.normal(0, 0.05), 0.0]
+        air = [18.0 + 1.5 * t + rng.normal(0, 0.1), 9.0 + rng.normal(0, 0.1), 1.9]
+        sp = tk.update_sparse(np.array([ground, air]), np.array([0.15, 0.4]), np.array([t, t]), np.array([False, True]), set())
+        assert sp[0] == -1 and (k == 0) <= (sp[1] >= 0)
+        tk.step(t)
+    (tr,) = tk.tracks
+    assert tr.aerial and tr.state == CONFIRMED and tr.static_suspect and tr.evidence and abs(tr.x[0] - (18.0 + 1.5 * 1.1)) < 0.4
+
+
 def _standing_robot_run(suspect_protect_s: float):
     """LiDAR only, 10 Hz: a robot stands at (7, 4) from the start for 3 s, then drives off along x at 0.8 m/s; a
     referee's box (0.5 x 0.4 x 0.8 m) stands in a corner all along. Returns per cloud (t, the robot's true xy, the
