@@ -51,14 +51,18 @@ def range_sigma(range_m: np.ndarray, sigma_rot_rad: float, sigma_trans_m: float,
 class FieldOccupancy:
     """The field model's surface and structures as rasters: ``contains(p, tol_z, margin_xy)``.
 
-    The surface height is rasterised at ``res`` and max-filtered over k = 1 .. ``MAX_MARGIN_M / res`` cells each
-    side (margins ``k * res``); a margin asks for the fewest cells that cover it, so the margin used is at most one
-    cell above the one asked for. A point is occupied when ``z < surface_max(margin) + tol_z`` or inside a structure
-    grown by ``grow``."""
+    The surface height is rasterised at ``res`` and max-filtered for the horizontal ``margins_m`` offered, each over
+    ``ceil(m / res)`` cells each side (default: k = 1 .. ``MAX_MARGIN_M / res`` cells, margins ``k * res``); a margin
+    asked for takes the smallest one offered that covers it (on the default grid at most one cell more). A point is
+    occupied when ``z < surface_max(margin) + tol_z`` or inside a structure grown by ``grow``."""
 
     MAX_MARGIN_M = 0.5
+    # the five margins offered until 2026-12 (a 0.20 m margin took 0.25 m, filtered over 4 cells: 0.32 m); kept with
+    # box fixes (LidarFirstConfig.wall_margins_m: the sample replay's p95 0.305 -> 0.325 m on the cell grid)
+    COARSE_MARGINS_M = (0.08, 0.16, 0.25, 0.35, 0.5)
 
-    def __init__(self, surface_z, structures: list[dict], bounds: tuple[float, float, float, float], res: float = 0.08, grow: float = 0.3):
+    def __init__(self, surface_z, structures: list[dict], bounds: tuple[float, float, float, float], res: float = 0.08, grow: float = 0.3,
+                 margins_m: tuple[float, ...] | None = None):  # fmt: skip
         from scipy.ndimage import maximum_filter
 
         self.res = float(res)
@@ -70,10 +74,10 @@ class FieldOccupancy:
         z = np.asarray(surface_z(np.column_stack([xx.ravel(), yy.ravel()])), float) if surface_z is not None else np.zeros(xx.size)
         base = np.where(np.isfinite(z), z, 0.0).reshape(ny, nx)
         self.surface = base.astype(np.float32)
-        # (was five margins 0.08-0.5 m whose filters reached up to 0.3 cells past the next cell: at 10 m a 0.20 m
-        # margin took 4 cells, 0.32 m, and ate robots beside raised areas; measured: docs/runtime.md)
-        self.margins = res * np.arange(1, int(np.ceil(self.MAX_MARGIN_M / res - 1e-9)) + 1)
-        self.grids = np.stack([maximum_filter(base, size=2 * k + 1, mode="nearest") for k in range(1, len(self.margins) + 1)]).astype(np.float32)
+        grid = res * np.arange(1, int(np.ceil(self.MAX_MARGIN_M / res - 1e-9)) + 1)
+        self.margins = np.sort(np.asarray(margins_m, float)) if margins_m is not None else grid
+        cells = np.ceil(self.margins / res - 1e-9).astype(int)
+        self.grids = np.stack([maximum_filter(base, size=2 * k + 1, mode="nearest") for k in cells]).astype(np.float32)
         self.structures = []
         for st in structures or []:
             c = np.asarray(st["center"], float)
@@ -123,12 +127,13 @@ class FieldOccupancy:
         return occ
 
 
-def field_occupancy(field_model, bounds: tuple[float, float, float, float], voxel: float = 0.08, grow: float = 0.3) -> FieldOccupancy:
+def field_occupancy(field_model, bounds: tuple[float, float, float, float], voxel: float = 0.08, grow: float = 0.3,
+                    margins_m: tuple[float, ...] | None = None) -> FieldOccupancy:  # fmt: skip
     """The one place the background depends on the field model (surface_z + structures today; the field's mesh
     occupancy, ``FieldModel.occupancy_grid(voxel, grow)``, when it lands)."""
     if field_model is None:
-        return FieldOccupancy(None, [], bounds, voxel, grow)
-    return FieldOccupancy(field_model.surface_z, list(getattr(field_model, "structures", []) or []), bounds, voxel, grow)
+        return FieldOccupancy(None, [], bounds, voxel, grow, margins_m)
+    return FieldOccupancy(field_model.surface_z, list(getattr(field_model, "structures", []) or []), bounds, voxel, grow, margins_m)
 
 
 class VoxelBackground:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radarcal.geometry import invert_T
-from radarcal.runtime.background import StaticFilter, VoxelBackground, field_occupancy, range_sigma
+from radarcal.runtime.background import FieldOccupancy, StaticFilter, VoxelBackground, field_occupancy, range_sigma
 from radarcal.runtime.clusters import ClusterParams, cluster_points
 from radarcal.runtime.identity import add_votes, assign_labels, match_boxes, project_tracks, visible_parts
 from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Track3D, Tracker3D  # noqa: F401
@@ -47,6 +47,9 @@ class LidarFirstConfig:
     # with box fixes / LiDAR only: the measured ~9 mm lets far robots' lowest returns through LiDAR only; with a
     # camera it cost auto 0.4 points on seeds 1 and 2 (measured: docs/runtime.md), so auto keeps the old fixed 3 cm
     ground_rms_floor_m: tuple[float, float] = (0.03, 0.01)
+    # wall margins the static filter offers (FieldOccupancy.margins_m), with box fixes / LiDAR only (None: the 8 cm
+    # cell grid): on the cell grid auto lost on the sample replay (p95 0.305 -> 0.325 m; measured: docs/runtime.md)
+    wall_margins_m: tuple = (FieldOccupancy.COARSE_MARGINS_M, None)
     compensate: bool = False  # move older window points along their track (measured worse: docs)
     seen_lidar_s: float = 0.25  # a track counts as seen by the LiDAR this long after its last cluster
     seen_box_s: float = 0.1
@@ -93,7 +96,7 @@ class LidarFirst:
         self.sensor_xy = self.T_field_lidar[:2, 3].copy()
         L, W = field_model.size if field_model is not None else (28.0, 15.0)
         inset = self.cfg.crop_inset_m
-        occ = field_occupancy(field_model, (-1.0, -1.0, L + 1.0, W + 1.0))
+        occ = field_occupancy(field_model, (-1.0, -1.0, L + 1.0, W + 1.0), margins_m=self.cfg.wall_margins_m[int(self.cfg.lidar_only)])
         bg = VoxelBackground((0.0, 0.0, -0.5, L, W, 3.5), self.cfg.bg_voxel_m, self.cfg.bg_tau_s, self.cfg.bg_hits) if self.cfg.learn_background else None
         self.filter = StaticFilter(self.T_field_lidar, occ, bg, (inset, inset, L - inset, W - inset),
                                    sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m,
