@@ -324,6 +324,21 @@ def test_lidar_only_imm_smooths_a_cruising_robot_more_than_one_density():
     assert np.sqrt(np.mean(imm**2)) < 0.85 * np.sqrt(np.mean(one**2))
 
 
+def test_two_returns_make_a_sparse_component_lidar_only():
+    """A far robot's two returns from one rosette pass (20 m, 0.2-0.3 m up) are too few for a cluster; LiDAR only
+    (``min_points_sparse`` 2, set by the pipeline) they are a sparse component a track may take, with box fixes (3)
+    they are not (measured: docs/runtime.md)."""
+    from radarcal.runtime.clusters import ClusterParams
+
+    p = np.array([[20.0, 6.0, 0.3], [20.02, 6.05, 0.2]])
+    for n_min, n_sparse in ((2, 1), (3, 0)):
+        cl = cluster_points(p, np.zeros(2), np.zeros(2), SENSOR[:2], ClusterParams(min_points_sparse=n_min))
+        assert len(cl) == 0 and REJECT_REASONS[int(cl.rejected[0])] == "too few points" and len(cl.sparse) == n_sparse
+        if n_sparse:
+            c = cl.sparse.centre[0, :2]  # ~0.3 m behind the returns, away from the sensor
+            assert 0.2 < np.linalg.norm(c - p[:, :2].mean(0)) < 0.4 and np.linalg.norm(c - SENSOR[:2]) > np.linalg.norm(p[:, :2] - SENSOR[:2], axis=1).max()
+
+
 def test_sparse_components_keep_a_track_measured_but_never_start_one():
     """A far robot's 3 returns (a 5 cm footprint: too small for a robot's cluster) update the track it belongs to; the same
     returns where no track is start nothing."""
