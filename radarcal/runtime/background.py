@@ -51,12 +51,18 @@ def range_sigma(range_m: np.ndarray, sigma_rot_rad: float, sigma_trans_m: float,
 class FieldOccupancy:
     """The field model's surface and structures as rasters: ``contains(p, tol_z, margin_xy)``.
 
-    The surface height is rasterised at ``res`` and max-filtered for a few horizontal margins; a point is occupied
-    when ``z < surface_max(margin) + tol_z`` or inside a structure grown by ``grow``."""
+    The surface height is rasterised at ``res`` and max-filtered for the horizontal ``margins_m`` offered, each over
+    ``ceil(m / res)`` cells each side (default: k = 1 .. ``MAX_MARGIN_M / res`` cells, margins ``k * res``); a margin
+    asked for takes the smallest one offered that covers it (on the default grid at most one cell more). A point is
+    occupied when ``z < surface_max(margin) + tol_z`` or inside a structure grown by ``grow``."""
 
-    MARGINS = (0.08, 0.16, 0.25, 0.35, 0.5)
+    MAX_MARGIN_M = 0.5
+    # the five margins offered until 2026-12 (a 0.20 m margin took 0.25 m, filtered over 4 cells: 0.32 m); kept with
+    # box fixes (LidarFirstConfig.wall_margins_m: the sample replay's p95 0.305 -> 0.325 m on the cell grid)
+    COARSE_MARGINS_M = (0.08, 0.16, 0.25, 0.35, 0.5)
 
-    def __init__(self, surface_z, structures: list[dict], bounds: tuple[float, float, float, float], res: float = 0.08, grow: float = 0.3):
+    def __init__(self, surface_z, structures: list[dict], bounds: tuple[float, float, float, float], res: float = 0.08, grow: float = 0.3,
+                 margins_m: tuple[float, ...] | None = None):  # fmt: skip
         from scipy.ndimage import maximum_filter
 
         self.res = float(res)
@@ -68,13 +74,20 @@ class FieldOccupancy:
         z = np.asarray(surface_z(np.column_stack([xx.ravel(), yy.ravel()])), float) if surface_z is not None else np.zeros(xx.size)
         base = np.where(np.isfinite(z), z, 0.0).reshape(ny, nx)
         self.surface = base.astype(np.float32)
-        self.grids = np.stack([maximum_filter(base, size=2 * int(np.ceil(m / res)) + 1, mode="nearest") for m in self.MARGINS]).astype(np.float32)
+        grid = res * np.arange(1, int(np.ceil(self.MAX_MARGIN_M / res - 1e-9)) + 1)
+        self.margins = np.sort(np.asarray(margins_m, float)) if margins_m is not None else grid
+        cells = np.ceil(self.margins / res - 1e-9).astype(int)
+        self.grids = np.stack([maximum_filter(base, size=2 * k + 1, mode="nearest") for k in cells]).astype(np.float32)
         self.structures = []
         for st in structures or []:
             c = np.asarray(st["center"], float)
             half = np.asarray(st["size"], float) / 2 + grow
             yaw = float(st.get("yaw", 0.0))
             self.structures.append((c, half, np.cos(yaw), np.sin(yaw), float(st["size"][2]) + grow))
+
+    def _margin_index(self, margin_m: np.ndarray) -> np.ndarray:
+        """Index into :attr:`grids` of the fewest cells covering ``margin_m`` (at least one, at most the largest)."""
+        return np.minimum(np.searchsorted(self.margins, np.asarray(margin_m, float) - 1e-9), len(self.margins) - 1)
 
     def _cells(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ix = np.clip(((p[:, 0] - self.x0) / self.res).astype(np.int64), 0, self.surface.shape[1] - 1)
@@ -94,7 +107,7 @@ class FieldOccupancy:
         gy = self.y0 + (np.arange(ny) + 0.5) * self.res
         xx, yy = np.meshgrid(gx, gy)
         r = np.hypot(xx - sensor_xy[0], yy - sensor_xy[1])
-        k = np.minimum(np.searchsorted(np.asarray(self.MARGINS), margin_of_range(r) - 1e-9), len(self.MARGINS) - 1)
+        k = self._margin_index(margin_of_range(r))
         thr = np.take_along_axis(self.grids, k[None], 0)[0] + tol_of_range(r)
         for c, half, cs, sn, top in self.structures:
             dx, dy = xx - c[0], yy - c[1]
@@ -106,8 +119,7 @@ class FieldOccupancy:
         """(N,) bool: points (N,3) field frame that belong to the field or its structures."""
         p = np.asarray(p)
         iy, ix = self._cells(p)
-        k = np.searchsorted(np.asarray(self.MARGINS), np.broadcast_to(np.asarray(margin_xy, float), (len(p),)) - 1e-9)
-        k = np.minimum(k, len(self.MARGINS) - 1)
+        k = self._margin_index(np.broadcast_to(np.asarray(margin_xy, float), (len(p),)))
         occ = p[:, 2] < self.grids[k, iy, ix] + tol_z
         for c, half, cs, sn, top in self.structures:
             dx, dy = p[:, 0] - c[0], p[:, 1] - c[1]
@@ -115,12 +127,13 @@ class FieldOccupancy:
         return occ
 
 
-def field_occupancy(field_model, bounds: tuple[float, float, float, float], voxel: float = 0.08, grow: float = 0.3) -> FieldOccupancy:
+def field_occupancy(field_model, bounds: tuple[float, float, float, float], voxel: float = 0.08, grow: float = 0.3,
+                    margins_m: tuple[float, ...] | None = None) -> FieldOccupancy:  # fmt: skip
     """The one place the background depends on the field model (surface_z + structures today; the field's mesh
     occupancy, ``FieldModel.occupancy_grid(voxel, grow)``, when it lands)."""
     if field_model is None:
-        return FieldOccupancy(None, [], bounds, voxel, grow)
-    return FieldOccupancy(field_model.surface_z, list(getattr(field_model, "structures", []) or []), bounds, voxel, grow)
+        return FieldOccupancy(None, [], bounds, voxel, grow, margins_m)
+    return FieldOccupancy(field_model.surface_z, list(getattr(field_model, "structures", []) or []), bounds, voxel, grow, margins_m)
 
 
 class VoxelBackground:
@@ -191,7 +204,8 @@ class StaticFilter:
 
     ground_fit: bool = True
     plane: np.ndarray | None = None  # (a, b, c): the flat ground as the cloud sees it, z = a x + b y + c
-    plane_rms: float = 0.05
+    plane_rms: float = 0.03  # rms residual of the ground returns about the plane (m), smoothed over clouds
+    min_rms_m: float = 0.03  # floor of plane_rms in the tolerance (LidarFirst: 1 cm LiDAR only)
 
     def _fit_ground(self, p: np.ndarray, surf: np.ndarray) -> None:
         """Fit the flat ground (cells where the surface is z = 0) seen in this cloud: a calibration tilt of a few
@@ -219,13 +233,17 @@ class StaticFilter:
         self.plane_rms = rms if first else 0.8 * self.plane_rms + 0.2 * rms
 
     _thr: np.ndarray | None = None  # column heights (see FieldOccupancy.column_heights), built on first use
+    _thr_rms: float = np.nan  # the plane_rms they were built for (rebuilt when it moves by more than 20 %)
 
     def _tolerances(self):
         """Height tolerance and wall margin as functions of range: with the ground fitted, the calibration tilt is
-        removed and what is left is the fit residual (floored at 3 cm) and a tenth of the rotation sigma."""
+        removed and what is left is the fit's rms residual (:attr:`plane_rms`, floored at ``min_rms_m``) and a tenth
+        of the rotation sigma. (Until 2026-12 a fixed 3 cm stood for the residual, ~9 mm on `synth match`: 0.115
+        instead of 0.08 m at 24 m, and a far robot's lowest returns, often all it gave, went with the ground.)"""
         k, base = self.k_sigma, self.base_tol_m
         if self.ground_fit:
-            tol = lambda r: base + k * range_sigma(r, 0.1 * self.sigma_rot_rad, 0.0, 0.03)  # noqa: E731
+            rms = max(self.plane_rms, self.min_rms_m)
+            tol = lambda r: base + k * range_sigma(r, 0.1 * self.sigma_rot_rad, 0.0, rms)  # noqa: E731
         else:
             tol = lambda r: base + k * range_sigma(r, self.sigma_rot_rad, self.sigma_trans_m)  # noqa: E731
         margin = lambda r: 0.08 + k * range_sigma(r, self.sigma_rot_rad, self.sigma_trans_m)  # noqa: E731
@@ -239,9 +257,6 @@ class StaticFilter:
         With ``ground_fit`` heights are measured from the ground plane fitted to the clouds (:meth:`_fit_ground`),
         so the calibration's tilt does not eat into the tolerance. Cost: a transform, a crop, one raster gather."""
         occ = self.occupancy
-        if self._thr is None:
-            self._thr = occ.column_heights(np.asarray(self.T_field_lidar, float)[:2, 3], *self._tolerances())
-            self._top = (occ.surface + self.max_height_m).astype(np.float32)
         p = transform_f32(self.T_field_lidar, points_lidar)
         x0, y0, x1, y1 = self.crop
         px, py = p[:, 0], p[:, 1]
@@ -250,9 +265,9 @@ class StaticFilter:
         # the few points outside it)
         iy = ((py - occ.y0) * (1.0 / occ.res)).astype(np.int32)
         ix = ((px - occ.x0) * (1.0 / occ.res)).astype(np.int32)
-        np.clip(iy, 0, self._thr.shape[0] - 1, out=iy)
-        np.clip(ix, 0, self._thr.shape[1] - 1, out=ix)
-        cell = iy * self._thr.shape[1] + ix
+        np.clip(iy, 0, occ.surface.shape[0] - 1, out=iy)
+        np.clip(ix, 0, occ.surface.shape[1] - 1, out=ix)
+        cell = iy * occ.surface.shape[1] + ix
         z = p[:, 2]
         if self.ground_fit:
             sub = np.flatnonzero(inside)
@@ -261,6 +276,10 @@ class StaticFilter:
             if self.plane is not None:
                 a, b, c = (np.float32(v) for v in self.plane)
                 z = z - (a * px + b * py + c)
+        if self._thr is None or not abs(self.plane_rms - self._thr_rms) <= 0.2 * self._thr_rms:
+            self._thr = occ.column_heights(np.asarray(self.T_field_lidar, float)[:2, 3], *self._tolerances())
+            self._thr_rms = self.plane_rms
+            self._top = (occ.surface + self.max_height_m).astype(np.float32)
         inside &= (z >= self._thr.ravel()[cell]) & (z <= self._top.ravel()[cell])
         idx = np.flatnonzero(inside)
         p = p[idx]

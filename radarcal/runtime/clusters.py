@@ -34,6 +34,7 @@ class ClusterParams:
     loose_range_m: float = 10.0
     min_points_near: int = 8  # strict set (HITSZ: 12 / 0.15 eps strict, 6 / 0.4 loose)
     min_points_far: int = 3  # at 25 m and beyond
+    min_points_sparse: int = 3  # a sparse component (Clusters.sparse) a track may take (pipeline: 2 LiDAR only)
     footprint_m: tuple[float, float] = (0.12, 1.2)
     height_m: tuple[float, float] = (0.12, 1.6)  # top above the surface
     max_bottom_m: float = 0.6  # a ground robot's lowest point above the surface (lower parts may be filtered/hidden)
@@ -248,7 +249,7 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     out = Clusters(centre, cen[keep], lo[keep], hi[keep], n[keep], tm[keep], aerial[keep], rng[keep], remap[comp], comp, why)
     # sparse: too few points or too small a footprint for a robot of its own (a far robot's 3-7 returns from one
     # rosette pass, the aerial robot's 4-6), but no larger than one: a track may take it (Tracker3D.update_sparse)
-    sp = np.flatnonzero((np.isin(why, (1, 2, 3)) | ((why == 7) & (bottom <= q.aerial_min_m))) & (n >= q.min_points_far) & (foot <= q.footprint_m[1])
+    sp = np.flatnonzero((np.isin(why, (1, 2, 3)) | ((why == 7) & (bottom <= q.aerial_min_m))) & (n >= q.min_points_sparse) & (foot <= q.footprint_m[1])
                         & (hi[:, 2] - smin <= q.height_m[1] + (q.aerial_extent_m + 2.0) * aerial_z) & (q.sparse_aerial | ~aerial_z))  # fmt: skip
     smap = np.full(nc, -1)
     smap[sp] = np.arange(len(sp))

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radarcal.geometry import invert_T
-from radarcal.runtime.background import StaticFilter, VoxelBackground, field_occupancy, range_sigma
+from radarcal.runtime.background import FieldOccupancy, StaticFilter, VoxelBackground, field_occupancy, range_sigma
 from radarcal.runtime.clusters import ClusterParams, cluster_points
 from radarcal.runtime.identity import add_votes, assign_labels, match_boxes, project_tracks, visible_parts
 from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Track3D, Tracker3D  # noqa: F401
@@ -43,6 +43,13 @@ class LidarFirstConfig:
     crop_inset_m: float = 0.05
     sigma_rot_deg: float = 0.25  # calibration sigma the tolerances follow (bundle sigma when it has one)
     sigma_trans_m: float = 0.03
+    # floor (m) of the ground fit's rms residual in the static filter's height tolerance (StaticFilter.min_rms_m),
+    # with box fixes / LiDAR only: the measured ~9 mm lets far robots' lowest returns through LiDAR only; with a
+    # camera it cost auto 0.4 points on seeds 1 and 2 (measured: docs/runtime.md), so auto keeps the old fixed 3 cm
+    ground_rms_floor_m: tuple[float, float] = (0.03, 0.01)
+    # wall margins the static filter offers (FieldOccupancy.margins_m), with box fixes / LiDAR only (None: the 8 cm
+    # cell grid): on the cell grid auto lost on the sample replay (p95 0.305 -> 0.325 m; measured: docs/runtime.md)
+    wall_margins_m: tuple = (FieldOccupancy.COARSE_MARGINS_M, None)
     compensate: bool = False  # move older window points along their track (measured worse: docs)
     seen_lidar_s: float = 0.25  # a track counts as seen by the LiDAR this long after its last cluster
     seen_box_s: float = 0.1
@@ -56,9 +63,20 @@ class LidarFirstConfig:
     aerial_sigma_m: float = 0.25
     exclusion_m: float = 0.6  # output tracks nearer than this are one robot (a robot is <= 0.6 m across): one is measured
     lidar_only: bool = False  # no box fixes (LiDAR only, `--localise lidar`): only clusters measure the tracks
-    # Tracker3D white acceleration (m/s^2) with box fixes (auto), clusters only: far centres' 0.1-0.2 m jitter goes
-    # less into the velocity at 1.5, but with a camera 1.5 made the sample replay worse (measured: docs/runtime.md)
-    accel_sigma: tuple[float, float] = (3.0, 1.5)
+    # Tracker3D white acceleration (m/s^2) with box fixes (auto); with a camera a lower density made the sample
+    # replay worse (measured: docs/runtime.md)
+    accel_sigma: float = 3.0
+    # clusters only (LiDAR only, `--localise lidar`): an interacting multiple model of two densities, so far centres'
+    # 0.1-0.2 m jitter stays out of a cruising robot's velocity and a hard manoeuvre still moves the weight to the high
+    # one (was one density of 1.5 m/s^2; measured: docs/runtime.md)
+    lidar_only_accel: tuple[float, float] = (0.5, 2.0)
+    imm_sojourn_s: float = 6.0
+
+    def tracker(self) -> Tracker3D:
+        """The 3D tracker this configuration runs: box fixes and clusters (one density), or clusters only (IMM)."""
+        if self.lidar_only:
+            return Tracker3D(imm_accel=self.lidar_only_accel, imm_sojourn_s=self.imm_sojourn_s)
+        return Tracker3D(accel_sigma=self.accel_sigma)
 
 
 def point_times(n: int, t_cloud: float, sweep_s: float, latency_s: float) -> np.ndarray:
@@ -78,11 +96,12 @@ class LidarFirst:
         self.sensor_xy = self.T_field_lidar[:2, 3].copy()
         L, W = field_model.size if field_model is not None else (28.0, 15.0)
         inset = self.cfg.crop_inset_m
-        occ = field_occupancy(field_model, (-1.0, -1.0, L + 1.0, W + 1.0))
+        occ = field_occupancy(field_model, (-1.0, -1.0, L + 1.0, W + 1.0), margins_m=self.cfg.wall_margins_m[int(self.cfg.lidar_only)])
         bg = VoxelBackground((0.0, 0.0, -0.5, L, W, 3.5), self.cfg.bg_voxel_m, self.cfg.bg_tau_s, self.cfg.bg_hits) if self.cfg.learn_background else None
         self.filter = StaticFilter(self.T_field_lidar, occ, bg, (inset, inset, L - inset, W - inset),
-                                   sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m)  # fmt: skip
-        self.tracker = tracker or Tracker3D(accel_sigma=self.cfg.accel_sigma[int(self.cfg.lidar_only)])
+                                   sigma_rot_rad=np.deg2rad(self.cfg.sigma_rot_deg), sigma_trans_m=self.cfg.sigma_trans_m,
+                                   min_rms_m=self.cfg.ground_rms_floor_m[int(self.cfg.lidar_only)])  # fmt: skip
+        self.tracker = tracker or self.cfg.tracker()
         # without box fixes a far robot seen only by a few returns gets a track from them (with box fixes its box
         # does: sparse-born tracks there took box-only fixes and labels of other robots, measured: docs/runtime.md)
         self.tracker.sparse_births = self.cfg.lidar_only

@@ -144,6 +144,7 @@ class Track3D:
     last_box: int | None = None  # index of the box matched in the current frame (identity)
     pending: tuple | None = None  # (xy, t) of a box fix that disagreed with a LiDAR-lost track
     origin: np.ndarray | None = None  # where the track started (a track that never moved may be background)
+    modes: tuple | None = None  # interacting multiple models (Tracker3D.imm_accel): (X (M,4), P (M,4,4), mu (M,), x, P they combine to)
 
     outranked_t: float = -np.inf  # frame time at which another entry of the same robot outranked it (LidarFirst.one_per_robot)
     ever_moved: bool = False
@@ -201,6 +202,24 @@ def _cv_predict(x: np.ndarray, P: np.ndarray, dt: float, q: float, vmax: float) 
     return x, F @ P @ F.T + Q
 
 
+def _kf_update(x: np.ndarray, P: np.ndarray, xy: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Kalman update of a constant-velocity state by a field (x, y) fix of isotropic ``sigma`` (m); returns the state,
+    its covariance and the fix's log-likelihood under the prediction."""
+    S = P[:2, :2] + np.eye(2) * sigma**2
+    Si = np.linalg.inv(S)
+    y = xy - x[:2]
+    K = P[:, :2] @ Si
+    P = (np.eye(4) - K @ np.eye(2, 4)) @ P
+    return x + K @ y, 0.5 * (P + P.T), float(-0.5 * y @ Si @ y - 0.5 * np.log(np.linalg.det(S)) - np.log(2 * np.pi))
+
+
+def _combine(X: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Moment-matched mean and covariance of the Gaussian mixture (M,4) ``X``, (M,4,4) ``Ps``, weights (M,) ``w``."""
+    x = w @ X
+    d = X - x
+    return x, np.einsum("m,mkl->kl", w, Ps) + np.einsum("m,mk,ml->kl", w, d, d)
+
+
 class Tracker3D:
     """Constant-velocity Kalman tracks of LiDAR clusters and box fixes, Hungarian assignment
     (:func:`scipy.optimize.linear_sum_assignment`), states tentative -> confirmed -> lost.
@@ -213,11 +232,19 @@ class Tracker3D:
     * A track without a measurement for ``lost_after_s`` is *lost*: still kept and predicted (flagged), never written
       as seen (cause 5); dropped after ``max_coast_s``.
     * Measurements carry their own time (the mean firing time of a cluster's points): the track is predicted to it,
-      updated, and predicted on to the frame time (motion compensation of late clouds, cause 1)."""
+      updated, and predicted on to the frame time (motion compensation of late clouds, cause 1).
+    * ``imm_accel`` (white accelerations, m/s^2; None: one model of ``accel_sigma``): an interacting multiple model
+      filter, one constant-velocity model per density, switching with mean sojourn ``imm_sojourn_s``: a cruising
+      robot is smoothed by the low density (far centres' 0.1-0.2 m jitter stays out of the velocity), a hard
+      manoeuvre moves the weight to the high one within a few fixes. ``x``/``P`` are always the mixture's moments;
+      a state changed outside the filter (a relocation, coasting damping) restarts the models from it."""
 
     def __init__(self, accel_sigma: float = 3.0, gate_m: float = 0.8, confirm_hits: int = 2, confirm_box_hits: int = 3, tentative_s: float = 0.5,
-                 lost_after_s: float = 0.35, max_coast_s: float = 1.5, vmax: float = 4.5, init_speed_sigma: float = 1.5):  # fmt: skip
+                 lost_after_s: float = 0.35, max_coast_s: float = 1.5, vmax: float = 4.5, init_speed_sigma: float = 1.5,
+                 imm_accel: tuple[float, ...] | None = None, imm_sojourn_s: float = 1.0):  # fmt: skip
         self.q = float(accel_sigma) ** 2
+        self.imm_q = None if not imm_accel else np.asarray(imm_accel, float) ** 2
+        self.imm_sojourn_s = float(imm_sojourn_s)
         self.gate_m = float(gate_m)
         self.confirm_hits = int(confirm_hits)
         self.confirm_box_hits = int(confirm_box_hits)
@@ -242,9 +269,35 @@ class Tracker3D:
     # --- primitives ---
     def predict_to(self, tr: Track3D, t: float) -> None:
         dt = t - tr.t
-        if dt > 0:
+        if dt <= 0:
+            return
+        if self.imm_q is None:
             tr.x, tr.P = _cv_predict(tr.x, tr.P, dt, self.q, self.vmax)
-            tr.t = t
+        else:
+            X, Ps, mu = self._modes(tr)
+            M = len(mu)
+            p = -np.expm1(-dt / self.imm_sojourn_s)  # a switch within dt
+            Pi = np.full((M, M), p / max(M - 1, 1)) + np.eye(M) * (1.0 - p - p / max(M - 1, 1))  # Pi[i, j]: i -> j
+            c = mu @ Pi
+            w = Pi * mu[:, None] / np.maximum(c[None, :], 1e-300)  # w[i, j]: mode i given mode j after the step
+            for j in range(M):
+                x0, P0 = _combine(X, Ps, w[:, j])
+                X[j], Ps[j] = _cv_predict(x0, P0, dt, float(self.imm_q[j]), self.vmax)
+            self._set_modes(tr, X, Ps, c / c.sum())
+        tr.t = t
+
+    def _modes(self, tr: Track3D) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The track's IMM models (copies), restarted from ``x``/``P`` when those were changed outside the filter."""
+        m = tr.modes
+        M = len(self.imm_q)
+        if m is None or not (np.array_equal(m[3], tr.x) and np.array_equal(m[4], tr.P)):
+            mu = m[2].copy() if m is not None else np.full(M, 1.0 / M)
+            return np.repeat(tr.x[None], M, 0), np.repeat(tr.P[None], M, 0), mu
+        return m[0].copy(), m[1].copy(), m[2].copy()
+
+    def _set_modes(self, tr: Track3D, X: np.ndarray, Ps: np.ndarray, mu: np.ndarray) -> None:
+        tr.x, tr.P = _combine(X, Ps, mu)
+        tr.modes = (X, Ps, mu, tr.x.copy(), tr.P.copy())
 
     def predicted_xy(self, t: float, tracks: list[Track3D] | None = None) -> np.ndarray:
         """(T,2) positions of ``tracks`` (default: all) extrapolated to ``t`` (states untouched)."""
@@ -272,21 +325,39 @@ class Tracker3D:
         r, c = linear_sum_assignment(cost)
         return [(live[i], int(j)) for i, j in zip(r, c) if cost[i, j] < 1e6]
 
-    def _update(self, tr: Track3D, xy: np.ndarray, sigma: float, t: float, z: float, source: str) -> None:
-        if t < tr.t:  # a measurement older than the state (late cloud after a box fix): apply it at the state time
+    def _update(self, tr: Track3D, xy: np.ndarray, sigma: float, t: float, z: float, source: str) -> bool:
+        """Predict ``tr`` to ``t`` and update it with the fix ``xy`` (``sigma`` m). A track born of one cluster
+        whose second LiDAR fix is farther from the first than a robot can go (``vmax`` dt + 3 sigma of two fixes) is
+        restarted at it (velocity 0): the first cluster was off (merged with a neighbour in the run's first sweep),
+        and the jump would otherwise be read as a velocity at ``vmax`` for the next sweeps. Returns True then."""
+        if source == "lidar" and tr.hits == 1 and tr.n_lidar == 1 and tr.n_box == 0 and t > tr.t_seen:
+            reach = self.vmax * (t - tr.t_seen) + 3.0 * np.sqrt(2.0) * sigma  # two centres of about this sigma
+            if float(np.linalg.norm(xy - tr.x[:2])) > reach:
+                tr.x = np.array([xy[0], xy[1], 0.0, 0.0])
+                tr.P = np.diag([sigma**2, sigma**2, self.init_speed_sigma**2, self.init_speed_sigma**2])
+                tr.t = tr.t_seen = t  # (the next step predicts it to the frame time)
+                tr.z, tr.source, tr.modes = z, source, None
+                tr.origin = np.asarray(xy, float)[:2].copy()
+                tr.hits += 1
+                return True
+        if t < tr.t:  # a measurement older than the state (a cloud after the frame the state was predicted to): apply it at the state time
             xy = xy + tr.x[2:] * (tr.t - t)
             t = tr.t
         self.predict_to(tr, t)
-        R = np.eye(2) * sigma**2
-        S = tr.P[:2, :2] + R
-        K = tr.P[:, :2] @ np.linalg.inv(S)
-        tr.x = tr.x + K @ (xy - tr.x[:2])
-        tr.P = (np.eye(4) - K @ np.eye(2, 4)) @ tr.P
-        tr.P = 0.5 * (tr.P + tr.P.T)
+        if self.imm_q is None:
+            tr.x, tr.P, _ = _kf_update(tr.x, tr.P, xy, sigma)
+        else:
+            X, Ps, mu = self._modes(tr)
+            ll = np.zeros(len(mu))
+            for j in range(len(mu)):
+                X[j], Ps[j], ll[j] = _kf_update(X[j], Ps[j], xy, sigma)
+            w = mu * np.exp(ll - ll.max())
+            self._set_modes(tr, X, Ps, w / w.sum())
         tr.z = z if tr.hits == 0 else 0.7 * tr.z + 0.3 * z
         tr.t_seen = max(tr.t_seen, t)
         tr.hits += 1
         tr.source = source
+        return False
 
     def _new(self, xy: np.ndarray, sigma: float, t: float, z: float, source: str) -> Track3D:
         P = np.diag([sigma**2, sigma**2, self.init_speed_sigma**2, self.init_speed_sigma**2])
@@ -315,12 +386,14 @@ class Tracker3D:
         live = list(self.tracks)
         tentative_penalty = np.array([0.0 if tr.state != TENTATIVE else 0.3 for tr in live])
         for tr, j in self._assign(live, centre, sigma, t, aerial, penalty=tentative_penalty):
-            self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
+            restarted = self._update(tr, centre[j, :2], float(sigma[j]), float(t[j]), float(centre[j, 2]), "lidar")
             tr.t_lidar = max(tr.t_lidar, float(t[j]))
             tr.n_lidar += 1
-            tr.extent = 0.7 * tr.extent + 0.3 * extent[j]
+            tr.extent = extent[j].copy() if restarted else 0.7 * tr.extent + 0.3 * extent[j]
             tr.hull, tr.t_points = hulls[j], float(t_ref)
-            if tr.envelope is not None:
+            if restarted:  # the first cluster's points were not this robot's alone: its envelope starts again
+                tr.envelope = np.r_[hulls[j][0][:2], hulls[j][1][:2]]
+            elif tr.envelope is not None:
                 tr.envelope = np.r_[np.minimum(tr.envelope[:2], hulls[j][0][:2]), np.maximum(tr.envelope[2:], hulls[j][1][:2])]
             ids[j] = tr.id
         for j in range(K):
@@ -352,8 +425,9 @@ class Tracker3D:
         ``sparse_births`` (LiDAR only) a component farther than ``sparse_birth_m`` from every track starts a
         tentative track, which the next sweep's component or cluster confirms — after the first ``learn_s`` only
         (before, a few returns of the referee's box and of a far robot look alike, and a static suspect born of
-        sparse returns wandered more than 1 m: a 3 s ghost on seed 5); else they never start one. Returns the track
-        id per component (-1: none took it).
+        sparse returns wandered more than 1 m: a 3 s ghost on seed 5) — except at the aerial robot's height, where
+        nothing standing on the field reaches (its few returns start a track from the first sweep; still a static
+        suspect until it moves); else they never start one. Returns the track id per component (-1: none took it).
 
         Why not the camera-fixed tracks in a pile-up: a sparse take marks the track seen by the LiDAR (no box-only
         fix for 0.3 s, its last cluster hull kept for identity), so with robots 1 m apart the box-depth fixes that
@@ -373,7 +447,7 @@ class Tracker3D:
             taken = {j for _, j in pairs}
             early = self.t0 is None or tm - self.t0 < self.learn_s  # the referee's box and a robot look alike then
             for j in range(len(centre)):
-                if not early and j not in taken and (not len(xy) or np.linalg.norm(xy - centre[j, :2], axis=1).min() >= self.sparse_birth_m):
+                if (not early or bool(aerial[j])) and j not in taken and (not len(xy) or np.linalg.norm(xy - centre[j, :2], axis=1).min() >= self.sparse_birth_m):
                     ids[j] = self._new_lidar(centre[j], float(sigma[j]), float(t[j]), bool(aerial[j]), None, None, np.r_[centre[j, :2], centre[j, :2]]).id
         for tr, j in pairs:
             if tr.id not in takers:

@@ -62,8 +62,9 @@ def test_realistic_replay_auto_box_and_lidar_only(tmp_path, capsys):
     assert box["right_within_0.6m_pct"] > 75
     assert lidar["longest_ghost_s"] < 1.0 and lidar["false_per_frame"] < 0.4  # people at the boundary never become robots
     # seed 7: 51.2 % before the sparse components / static-suspect changes, 66.1 % after, 79.8 % with the LiDAR-only
-    # 1.5 m/s^2, the aerial sigma and sparse births (84-91 % on the other seeds; goal 95 %: not met, docs/runtime.md)
-    assert lidar["lidar_within_0.3m_pct"] > 76
+    # 1.5 m/s^2, the aerial sigma and sparse births, 83.3 % with the LiDAR-only IMM, the cell-grid wall margins and the
+    # residual ground tolerance (89-94 % on the other seeds; goal 95 %: not met, docs/runtime.md)
+    assert lidar["lidar_within_0.3m_pct"] > 81
 
 
 def test_one_robot_is_never_on_the_referee_map_twice(tmp_path, capsys):
