@@ -203,7 +203,8 @@ class LidarFirst:
 
     def frame(self, t: float, boxes: np.ndarray, labels: list[str], scores: np.ndarray, locate_boxes=None) -> list[Track3D]:
         """One camera frame at ``t``: identities from ``boxes`` (B,4) with ``labels``/``scores``; boxes matched to no
-        track go to ``locate_boxes(indices) -> (p_field (K,3), sigma (K,), source (K,))`` (None: LiDAR only).
+        track go to ``locate_boxes(indices) -> (p_field (K,3), sigma (K,), source (K,), beyond_m (K,))`` (None: LiDAR
+        only; ``beyond_m``: how far beyond ``p_field`` the box's bottom edge puts its robot, :func:`pipeline.foot_beyond`).
         Returns the confirmed and lost tracks with evidence (:attr:`Track3D.evidence`) predicted to ``t``
         (``tr.last_box``: the box matched this frame)."""
         return self.frame_views(t, [(None, t, boxes, labels, scores, locate_boxes)])
@@ -249,7 +250,7 @@ class LidarFirst:
             # one far from the prediction took its depth from something else (a robot in front) and is ignored
             if matched_boxes and locate_boxes is not None and self.fuse_box_depth:
                 idx = sorted(matched_boxes)
-                p, sig, src = locate_boxes(idx)
+                p, sig, src, _ = locate_boxes(idx)
                 for n, j in enumerate(idx):
                     tr = next(o for o in tk.tracks if o.last_box == j)
                     if str(src[n]) != "depth" or not np.all(np.isfinite(p[n, :2])) or tr.aerial:
@@ -260,11 +261,13 @@ class LidarFirst:
                         tr.n_box, tr.t_box = tr.n_box + 1, tv
             rest = [j for j in range(len(boxes)) if j not in matched_boxes]
             if rest and locate_boxes is not None:
-                p, sig, src = locate_boxes(rest)
+                p, sig, src, beyond = locate_boxes(rest)
+                # the box's bottom edge puts its robot a robot's width (+ 2 sigma) or more beyond where it was located
+                behind = beyond > self.cfg.exclusion_m + 2.0 * sig
                 for n, j in enumerate(rest):
                     if str(src[n]) != "none" and np.all(np.isfinite(p[n, :2])):
                         fixes.append({"k": k, "j": j, "p": p[n], "sigma": float(sig[n]), "source": str(src[n]), "label": labels[j], "score": float(scores[j]), "t": tv,
-                                      "h": float(boxes[j, 3] - boxes[j, 1])})  # fmt: skip
+                                      "h": float(boxes[j, 3] - boxes[j, 1]), "behind": bool(behind[n])})  # fmt: skip
         # box-only fixes for the boxes no LiDAR track explains (one per robot however many cameras box it)
         holder = {tr.label: tr for tr in tk.tracks if tr.label is not None}
         fixed: set[int] = set()  # tracks given a box-only fix this tick: a second fix of that label is another robot
@@ -273,7 +276,7 @@ class LidarFirst:
             tr = holder.get(label)
             if tr is not None and tf - tr.t_lidar < 0.3:
                 continue  # the LiDAR sees that robot: a box-only fix would only add the box path's errors
-            if on_other_robot(tk, tr, label, pf[:2], fx["sigma"], tf, self.cfg.exclusion_m + 2.0 * fx["sigma"]):
+            if on_other_robot(tk, tr, label, pf[:2], fx["sigma"], tf, self.cfg.exclusion_m + 2.0 * fx["sigma"], fx.get("behind", False)):
                 continue  # its depth is the robot in front, which the LiDAR sees under its own label
             tr = misread_holder(tk, tr if tr is None or tr.id not in fixed else None, label, pf[:2], fx["sigma"], tf, fixed)
             # a LiDAR track where the box puts the robot (its projection missed the box): identity by position
@@ -315,7 +318,7 @@ class LidarFirst:
         idx = sorted(best.values())
         self.shadow_boxes = {}
         if idx:
-            p, sig, src = locate_boxes(idx)
+            p, sig, src, _ = locate_boxes(idx)
             meas = [(labels[j], p[n, :2], float(sig[n]), str(src[n])) for n, j in enumerate(idx) if str(src[n]) != "none"]
             self.shadow_boxes = {labels[j]: j for n, j in enumerate(idx) if str(src[n]) != "none"}
         else:
@@ -406,11 +409,11 @@ def _cached(locate_boxes, n: int):
     """``locate_boxes`` evaluated once for all ``n`` boxes of a frame; calls with index lists read from it."""
     if getattr(locate_boxes, "cached", False):
         return locate_boxes
-    p, sig, src = locate_boxes(list(range(n)))
+    p, sig, src, beyond = locate_boxes(list(range(n)))
 
     def f(idx):
         idx = list(idx)
-        return p[idx], sig[idx], src[idx]
+        return p[idx], sig[idx], src[idx], beyond[idx]
 
     f.cached = True
     return f
@@ -453,7 +456,7 @@ def fuse_fixes(fixes: list[dict], same_label_m: float = 0.5, other_label_m: floa
             by_label[m["label"]] = by_label.get(m["label"], 0.0) + m["score"] * wi
         lead = max(g, key=lambda m: (m["label"] == max(by_label, key=by_label.get), 1.0 / m["sigma"]))
         out.append({**lead, "p": p, "sigma": float(1.0 / np.sqrt(w.sum())), "source": "depth" if any(m["source"] == "depth" for m in g) else "ground",
-                    "label": max(by_label, key=by_label.get), "t": max(m["t"] for m in g), "votes": [(m["label"], m["score"], m.get("h", LEGIBLE_PX)) for m in g]})  # fmt: skip
+                    "label": max(by_label, key=by_label.get), "t": max(m["t"] for m in g), "behind": any(m.get("behind", False) for m in g), "votes": [(m["label"], m["score"], m.get("h", LEGIBLE_PX)) for m in g]})  # fmt: skip
     return out
 
 
@@ -488,17 +491,23 @@ def misread_holder(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray
     return tr
 
 
-def on_other_robot(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray, sigma: float, t: float, radius_m: float) -> bool:
-    """A box-only fix of ``label`` at field ``xy`` (``sigma`` m) that ``tr`` (the label's own track, None: none) does
-    not gate lies within ``radius_m`` (the exclusion radius + 2 sigma of the fix) of a ground track the LiDAR sees
-    now under another label, nearer than ``tr``: two robots are never that close, so the box's depth (or ground ray)
-    came from that robot standing in front of a hidden one. On family A seed 5 two such tele fixes moved blue_2's
-    LiDAR-lost track 4.4 m onto red_1 and blue_4's 9.5 m onto blue_7. A fix its own track gates goes on when that
-    track has had LiDAR clusters (two robots side by side in one cluster: the sample replay's blue_1 beside blue_2's
-    track); a box-born track's gate does not count, it was made of such fixes (A 4: blue_3 behind blue_2, its box
-    depths 0.8 m short, one robot twice on the map)."""
+def on_other_robot(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray, sigma: float, t: float, radius_m: float, behind: bool) -> bool:
+    """A box-only fix of ``label`` at field ``xy`` (``sigma`` m) lying within ``radius_m`` (the exclusion radius + 2
+    sigma of the fix) of a ground track the LiDAR sees now under another label, nearer than ``tr`` (the label's own
+    track, None: none), is that robot's depth (or ground ray) — the box's robot is hidden behind it — when something
+    says the box's robot is not there: its own LiDAR-measured track is elsewhere (does not gate the fix; family A seed
+    5: two such tele fixes moved blue_2's LiDAR-lost track 4.4 m onto red_1 and blue_4's 9.5 m onto blue_7), or
+    ``behind``: the box's bottom edge puts it ``radius_m`` or more beyond the fix, or is hidden
+    (:func:`radarcal.runtime.pipeline.foot_beyond`; A 5 with the wide camera alone: blue_4, 25 px high at 25 m, took blue_7's depth at 15.6 m while no blue_4 track existed).
+    Without either the box's robot stands where its foot is, beside the other one (`synth field` seed 12: red_3 0.4 m
+    behind blue_7, its boxes' depths 0.3 m short on blue_7's points; dropping them lost red_3 for 0.6 s). A fix its
+    own LiDAR-measured track gates always goes on (two robots side by side in one cluster: the sample replay's blue_1
+    beside blue_2's track); a box-born track's gate does not count, it may be made of such fixes."""
     own = np.inf if tr is None else float(np.linalg.norm(tk.predicted_xy(t, [tr])[0] - xy))
-    if tr is not None and tr.n_lidar and own <= float(tk._gate(tr, np.array([sigma]), np.array([t]))[0]):
+    lidar_track = tr is not None and tr.n_lidar > 0
+    if lidar_track and own <= float(tk._gate(tr, np.array([sigma]), np.array([t]))[0]):
+        return False
+    if not (lidar_track or behind):
         return False
     others = [o for o in tk.tracks if o.label not in (None, label) and not o.aerial and t - o.t_lidar < 0.3]
     d = np.linalg.norm(tk.predicted_xy(t, others) - xy, axis=1)

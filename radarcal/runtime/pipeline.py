@@ -148,6 +148,19 @@ def no_ground_ray(boxes: np.ndarray, frame_boxes: np.ndarray, min_aspect: float)
     return flat | foot.any(axis=1)
 
 
+def foot_beyond(localiser: Localiser, boxes: np.ndarray, frame_boxes: np.ndarray, p_field: np.ndarray, min_aspect: float) -> np.ndarray:
+    """(K,) how far (m, horizontally along the view) beyond its located centre ``p_field`` (K,3) the bottom edge of
+    each box puts its robot: the range of the bottom centre's ground ray (``Localiser.from_ground``, on the field's
+    surface, so a robot on a highland far behind is not taken for one in front) minus the located range; inf where the
+    edge is not the robot's foot (:func:`no_ground_ray`: a robot in front hides it, or a hidden robot's top) or the
+    ray meets no surface. A box-depth fix taken from a robot standing in front lies well short of it."""
+    b = np.asarray(boxes, float).reshape(-1, 4)
+    g = localiser.from_ground(np.column_stack([0.5 * (b[:, 0] + b[:, 2]), b[:, 3]]))
+    o = localiser.cam_origin[:2]
+    beyond = np.linalg.norm(g[:, :2] - o, axis=1) - np.linalg.norm(np.asarray(p_field, float).reshape(-1, 3)[:, :2] - o, axis=1)
+    return np.where(np.isfinite(beyond) & ~no_ground_ray(b, frame_boxes, min_aspect), beyond, np.inf)
+
+
 class Pipeline:
     """Per-frame core: clouds in, detections in, located + tracked robots out."""
 
@@ -314,7 +327,7 @@ class Pipeline:
             loc.source[no_ground_ray(b, boxes, self.cfg.ground_min_aspect) & (loc.source == "ground")] = "none"
             for n, j in enumerate(idx):
                 fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
-            return loc.p_field, loc.sigma, loc.source
+            return loc.p_field, loc.sigma, loc.source, foot_beyond(self.localiser, b, boxes, loc.p_field, self.cfg.ground_min_aspect)
 
         live = self.lidar_first.frame(t, boxes, labels, scores, locate_boxes if self.cfg.localise == "auto" else None)
         toc = time.perf_counter()
@@ -380,7 +393,7 @@ class Pipeline:
             loc.source[no_ground_ray(b, boxes, self.cfg.ground_min_aspect) & (loc.source == "ground")] = "none"
             for n, j in enumerate(idx):
                 fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
-            return loc.p_field, loc.sigma, loc.source
+            return loc.p_field, loc.sigma, loc.source, foot_beyond(view.localiser, b, boxes, loc.p_field, self.cfg.ground_min_aspect)
 
         return locate_boxes
 

@@ -7,9 +7,11 @@ import pytest
 
 from radarcal.errors import InputError
 from radarcal.runtime.detector import Detection
+from radarcal.geometry import invert_T
+from radarcal.runtime.localise import Localiser
 from radarcal.runtime.lidar_first import box_fix_order, fuse_fixes, misread_holder, on_other_robot
 from radarcal.runtime.multicam import TickDetector, group_by_time, missing_text, parse_videos
-from radarcal.runtime.pipeline import boxes_in_front, fuse_by_label, no_ground_ray
+from radarcal.runtime.pipeline import boxes_in_front, foot_beyond, fuse_by_label, no_ground_ray
 from radarcal.runtime.sources import CameraFrame
 from radarcal.runtime.tracks import Tracker3D
 
@@ -131,26 +133,55 @@ def test_two_fixes_of_one_label_the_one_at_its_track_first():
 
 def test_a_box_fix_on_another_robot_the_lidar_sees_moves_no_track():
     """A 5 of the benchmark: blue_2, hidden behind red_1, boxed by the tele with red_1's depth: the fix lies on red_1's
-    LiDAR track, so it must not move blue_2's LiDAR-lost track (two such fixes had moved it 4.4 m there)."""
+    LiDAR track while blue_2's own LiDAR-measured track is 4.4 m away, so it must not move that track (two such fixes
+    had moved it 4.4 m there)."""
     tk = Tracker3D()
     blue2, red1 = _coasting(tk, (20.05, 3.75), "blue_2"), _coasting(tk, (15.8, 5.95), "red_1", t_lidar=1.0)
+    blue2.n_lidar = 20  # tracked by the LiDAR before it went behind red_1
     fix, s = np.array([15.69, 5.37]), 0.1  # 0.59 m from red_1's track, 4.4 m from blue_2's (outside its gate)
-    assert on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.6 + 2 * s)
-    assert on_other_robot(tk, None, "blue_2", fix, s, 1.0, 0.6 + 2 * s)  # no blue_2 track yet: no box-born one there either
-    assert not on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.5)  # outside the radius: a robot beside red_1
-    assert not on_other_robot(tk, blue2, "red_1", fix, s, 1.0, 0.8)  # red_1's own fix (handled by its track)
+    assert on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.6 + 2 * s, False)
+    assert not on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.5, False)  # outside the radius: a robot beside red_1
+    assert not on_other_robot(tk, blue2, "red_1", fix, s, 1.0, 0.8, False)  # red_1's own fix (handled by its track)
     red1.t_lidar = 0.5  # the LiDAR lost red_1 too: nothing says the fix is not blue_2
-    assert not on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.8)
+    assert not on_other_robot(tk, blue2, "blue_2", fix, s, 1.0, 0.8, True)
     red1.t_lidar = 1.0
     # blue_2's own LiDAR track gates the fix: two robots side by side (one LiDAR cluster), the fix is blue_2's
     near_own = red1.x[:2] + np.array([-0.35, 0.0])
     blue2.x[:2] = near_own + np.array([0.0, 0.45])
-    blue2.n_lidar = 5
-    assert not on_other_robot(tk, blue2, "blue_2", near_own, s, 1.0, 0.8)
-    blue2.n_lidar = 0  # a box-born track (A 4's blue_3 behind blue_2): made of such fixes, its gate says nothing
-    assert on_other_robot(tk, blue2, "blue_2", near_own, s, 1.0, 0.8)
+    assert not on_other_robot(tk, blue2, "blue_2", near_own, s, 1.0, 0.8, True)
     unnamed = _coasting(tk, (10.0, 10.0), None, t_lidar=1.0)  # an unnamed LiDAR track: the box names it (not this rule)
-    assert not on_other_robot(tk, None, "blue_2", unnamed.x[:2] + 0.1, s, 1.0, 0.8)
+    assert not on_other_robot(tk, None, "blue_2", unnamed.x[:2] + 0.1, s, 1.0, 0.8, True)
+
+
+def test_a_box_fix_beside_another_robot_goes_on_unless_its_box_stands_behind(station):
+    """No LiDAR track of the label says where its robot is: the box's own bottom edge does (`foot_beyond`). `synth
+    field` seed 12: red_3 0.4 m behind blue_7 (LiDAR-seen), its foot in view, its box depths blue_7's points (0.3 m
+    short of red_3): the fix is red_3 (dropping such fixes lost red_3 for 0.6 s). A 5, wide camera alone: blue_4 at
+    25 m, no blue_4 track, its box's depth blue_7's at 15.6 m: its ground ray lands metres beyond — dropped; as is a
+    box whose foot a robot in front hides (its bottom edge is that robot's outline)."""
+    cam, T_field_cam = station["camera"], station["T_field_cam"]
+    T_cam_field = invert_T(T_field_cam)
+
+    def box_at(x, y, r=0.25, h=0.45):  # a robot's image box: its top corners and its nearest foot point
+        uv, _, _ = cam.project_from(T_cam_field, np.array([[x - r, y - r, h], [x - r, y + r, h], [x - r, y, 0.0], [x + r, y, h]]))
+        return np.array([uv[:, 0].min(), uv[:, 1].min(), uv[:, 0].max(), uv[2, 1]])
+
+    blue7 = np.array([18.0, 7.5, 0.0])
+    boxes = np.array([box_at(18.3, 7.8), box_at(25.0, 8.5), box_at(18.0, 7.5), box_at(16.5, 6.0), box_at(18.5, 5.85)])
+    p = np.tile(blue7, (5, 1))  # every box's depth fix: blue_7's points (its centre)
+    beyond = foot_beyond(Localiser(cam, T_field_cam), boxes, boxes, p, 0.55)
+    assert abs(beyond[0] - 0.3) < 0.1 and abs(beyond[1] - 7.0) < 0.3 and abs(beyond[2]) < 0.05 and beyond[3] < -1.0, beyond
+    assert beyond[4] == np.inf  # its bottom centre inside the box of the robot in front (16.5 m): not its foot
+    tk = Tracker3D()
+    _coasting(tk, blue7[:2], "blue_7", t_lidar=1.0)
+    fix, s = blue7[:2], 0.07
+    behind = beyond > 0.6 + 2 * s
+    assert behind.tolist() == [False, True, False, False, True]
+    assert not on_other_robot(tk, None, "red_3", fix, s, 1.0, 0.6 + 2 * s, bool(behind[0]))  # a robot beside blue_7
+    assert on_other_robot(tk, None, "blue_4", fix, s, 1.0, 0.6 + 2 * s, bool(behind[1]))  # blue_7's depth
+    box_born = _coasting(tk, fix + [0.5, 0.0], "red_3")  # made of such fixes (n_lidar 0): its gate says nothing
+    assert not on_other_robot(tk, box_born, "red_3", fix, s, 1.0, 0.6 + 2 * s, False)
+    assert on_other_robot(tk, box_born, "red_3", fix, s, 1.0, 0.6 + 2 * s, True)  # A 4: blue_3 behind blue_2
 
 
 def test_no_ground_ray_from_a_foot_hidden_by_a_robot_in_front():
