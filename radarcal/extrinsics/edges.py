@@ -421,12 +421,14 @@ def image_edges(image: np.ndarray, min_length: int = 40, canny: tuple[float, flo
 
     ``method="lsd"`` (default): straight segments of OpenCV's line-segment detector at least ``min_length`` px
     long, sampled every pixel (sub-pixel positions, direction of the segment) - foliage and texture clutter that
-    a targetless method would otherwise lock onto is mostly gone. ``method="canny"``: Canny pixels of connected
+    a targetless method would otherwise lock onto is mostly gone. ``method="lsd-peak"``: the same samples moved
+    across their segment onto the gradient peak (``_to_gradient_peak``: LSD puts the borders of a stripe a few px
+    wide outside it). ``method="canny"``: Canny pixels of connected
     edge chains whose extent is at least ``min_length`` px, refined to sub-pixel along the gradient; thresholds
     default to the 90th percentile of the gradient magnitude."""
     gray = image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
-    if method == "lsd":
-        return _lsd_edges(gray, min_length)
+    if method in ("lsd", "lsd-peak"):
+        return _lsd_edges(gray, min_length, to_peak=method == "lsd-peak")
     if method == "lsd+canny":
         a, b = _lsd_edges(gray, min_length), image_edges(gray, min_length, canny, blur, "canny")
         return _union_edges(a, b)
@@ -510,7 +512,7 @@ def _to_gradient_peak(gray: np.ndarray, uv: np.ndarray, dirs: np.ndarray, half_p
     return uv + off[:, None] * normal
 
 
-def _lsd_edges(gray: np.ndarray, min_length: float) -> ImageEdges:
+def _lsd_edges(gray: np.ndarray, min_length: float, to_peak: bool = False) -> ImageEdges:
     lines = cv2.createLineSegmentDetector().detect(gray)[0]
     h, w = gray.shape
     L = np.zeros((0, 4)) if lines is None else lines.reshape(-1, 4).astype(float)
@@ -522,7 +524,9 @@ def _lsd_edges(gray: np.ndarray, min_length: float) -> ImageEdges:
     start = np.concatenate([[0], np.cumsum(n)[:-1]]) if len(n) else np.zeros(0, int)
     t = (np.arange(n.sum()) - np.repeat(start, n)) / np.repeat(np.maximum(n - 1, 1), n)
     dirs = seg[which] / length[which, None]
-    uv = _to_gradient_peak(gray, L[which, :2] + t[:, None] * seg[which], dirs)
+    uv = L[which, :2] + t[:, None] * seg[which]
+    if to_peak:
+        uv = _to_gradient_peak(gray, uv, dirs)
     edge_map = np.zeros((h, w), np.uint8)
     for x0, y0, x1, y1 in L:  # loop over segments (hundreds), not pixels
         cv2.line(edge_map, (int(round(x0)), int(round(y0))), (int(round(x1)), int(round(y1))), 255, 1)

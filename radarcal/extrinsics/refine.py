@@ -82,7 +82,7 @@ class RefineOptions:
     bootstrap_block_m: float = 0.5  # LiDAR edge samples in one block of this size are resampled together
     jackknife_grid: int = 3  # sector_jackknife: the image cut into grid x grid sectors (0: none)
     jackknife_min_matches: int = 10  # sectors with fewer matches are not left out on their own
-    unresolved_separation_px: float | None = None  # LiDAR edge samples with a parallel edge closer than this beside them are not matched (None: the finest radius; 0: off)
+    unresolved_separation_px: float | None = 0.0  # opt-in thin-stripe edge model (match_edges): > 0 or None (= the finest radius) - matches on the nearest image line only, LiDAR samples / image pixels with a parallel edge closer than this beside them not matched; 0: off (the default: measured not better held-out, docs/lidar_camera.md "Unresolved edge pairs")
 
 
 @dataclass
@@ -168,8 +168,10 @@ def _project_edges(scene: EdgeScene, T: np.ndarray, separation_px: float = 0.0):
 
 
 def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_angle_deg: float = 20.0, separation_px: float = 0.0):
-    """Matches of projected LiDAR edge samples to local image edge lines; with ``separation_px`` > 0 the samples
-    with a parallel LiDAR edge closer than that beside them (``unresolved_edges``) are not matched.
+    """Matches of projected LiDAR edge samples to local image edge lines. With ``separation_px`` > 0 (the thin-stripe
+    edge model, opt-in) the local line is fitted to the nearest image line's pixels only (``ImageEdges.line_id``) and
+    LiDAR samples / image pixels with a parallel edge closer than that beside them (``unresolved_edges``) are not
+    matched.
     Returns (index into scene.lidar.points, line point m (n,2), line normal (n,2), residual (n,))."""
     ie = scene.image
     if ie.tree is None or len(scene.lidar.points) == 0:
@@ -186,7 +188,7 @@ def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_
     dist, nn = ie.tree.query(uv[idx], k=3 * k, distance_upper_bound=radius)
     fin = np.isfinite(dist)
     nn = np.where(fin, nn, 0)
-    line_id = ie.line_id
+    line_id = ie.line_id if separation_px > 0 else None
     use = fin if separation_px <= 0 else fin & _resolved_pixels(ie, separation_px)[nn]
     if line_id is not None:
         first = nn[np.arange(len(nn)), np.argmax(use, axis=1)]  # the nearest usable pixel's line
@@ -312,7 +314,7 @@ def _weighted_fn(x, T0, scenes, matches, fix_t, sw, t_prior, sigma_t, f_scale):
 def _separation_px(o) -> float:
     """Separation (px) below which two parallel projected LiDAR edges count as unresolved (``unresolved_edges``):
     ``o.unresolved_separation_px``, None = the finest match radius (a second parallel edge closer than that is
-    among the 5 nearest image edge pixels of a match)."""
+    among the 5 nearest image edge pixels of a match); 0: the thin-stripe edge model is off."""
     return float(o.radii_px[-1] if o.unresolved_separation_px is None else o.unresolved_separation_px)
 
 
