@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.spatial import cKDTree
 
 from radarcal import geometry
 from radarcal.camera import Camera
@@ -81,6 +82,7 @@ class RefineOptions:
     bootstrap_block_m: float = 0.5  # LiDAR edge samples in one block of this size are resampled together
     jackknife_grid: int = 3  # sector_jackknife: the image cut into grid x grid sectors (0: none)
     jackknife_min_matches: int = 10  # sectors with fewer matches are not left out on their own
+    unresolved_separation_px: float | None = 0.0  # opt-in thin-stripe edge model (match_edges): > 0 or None (= the finest radius) - matches on the nearest image line only, LiDAR samples / image pixels with a parallel edge closer than this beside them not matched; 0: off (the default: measured not better held-out, docs/lidar_camera.md "Unresolved edge pairs")
 
 
 @dataclass
@@ -111,35 +113,101 @@ def _apply(x: np.ndarray, T0: np.ndarray) -> np.ndarray:
     return geometry.T_from_rotvec(x[:3], x[3:]) @ T0
 
 
-def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_angle_deg: float = 20.0):
-    """Matches of projected LiDAR edge samples to local image edge lines.
-    Returns (index into scene.lidar.points, line point m (n,2), line normal (n,2), residual (n,))."""
-    cam, le, ie = scene.camera, scene.lidar, scene.image
-    if ie.tree is None or len(le.points) == 0:
-        return np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
+def unresolved_edges(uv: np.ndarray, dirs_uv: np.ndarray, separation_px: float, same_edge_px: float = 0.5, max_angle_deg: float = 20.0, k: int = 24) -> np.ndarray:
+    """Mask of projected LiDAR edge samples that have a *parallel neighbour edge* beside them: another sample whose
+    projected direction is within ``max_angle_deg``, offset across the edge by more than ``same_edge_px`` (one
+    edge seen twice, e.g. a crease that is also a reflectivity step, is not two edges) and less than
+    ``separation_px``, and no farther along it. ``uv`` (n,2) px, ``dirs_uv`` (n,2) unit image directions (NaN: none,
+    never unresolved). The image cannot resolve two such edges (a thin painted stripe, a patch border next to a
+    crease: blur and the line detector give one line, or one between them) and a point-to-line match to the 5
+    nearest edge pixels then lies between them - by an amount that changes with the depth at which they are
+    projected, a bias along the optical axis (docs/lidar_camera.md, "Unresolved edge pairs")."""
+    n = len(uv)
+    out = np.zeros(n, bool)
+    has = np.all(np.isfinite(dirs_uv), axis=1)
+    if n < 2 or separation_px <= same_edge_px:
+        return out
+    d, nn = cKDTree(uv).query(uv, k=min(k, n), distance_upper_bound=separation_px)
+    ok = np.isfinite(d) & has[np.minimum(nn, n - 1)] & has[:, None]
+    nn = np.where(ok, nn, 0)
+    off = uv[nn] - uv[:, None, :]
+    dr = np.where(has[:, None], dirs_uv, 0.0)
+    along = np.abs(np.einsum("nkj,nj->nk", off, dr))
+    across = np.abs(off[..., 0] * dr[:, None, 1] - off[..., 1] * dr[:, None, 0])
+    parallel = np.abs(np.einsum("nkj,nj->nk", np.where(ok[..., None], dirs_uv[nn], 0.0), dr)) > np.cos(np.radians(max_angle_deg))
+    beside = ok & parallel & (across > same_edge_px) & (across < separation_px) & (along < separation_px)
+    return beside.any(axis=1)
+
+
+def _resolved_pixels(ie: ImageEdges, separation_px: float) -> np.ndarray:
+    """(K,) mask of the image edge pixels that have no parallel image line beside them closer than
+    ``separation_px`` (``unresolved_edges`` on the pixels; cached on ``ie``): the two borders of a stripe a few px
+    wide come out of blur and the line detector displaced towards each other (a generated 2 px stripe: LSD lines
+    0.67 px off its borders), so neither is used - as the LiDAR samples beside a parallel edge are not."""
+    cache = ie.__dict__.setdefault("_resolved", {})
+    if separation_px not in cache:
+        cache[separation_px] = ~unresolved_edges(ie.uv, ie.dirs, separation_px)
+    return cache[separation_px]
+
+
+def _project_edges(scene: EdgeScene, T: np.ndarray, separation_px: float = 0.0):
+    """Projected LiDAR edge samples: uv (n,2) px, unit image directions (n,2; NaN without a 3D direction) and the
+    mask of samples in view (in front, inside the image) and - with ``separation_px`` > 0 - resolved
+    (``unresolved_edges``)."""
+    cam, le = scene.camera, scene.lidar
     uv, valid, z = cam.project_from(T, le.points)
     has_dir = np.all(np.isfinite(le.dirs), axis=1)
     uv2, valid2, _ = cam.project_from(T, le.points + 0.05 * np.where(has_dir[:, None], le.dirs, 0.0))
     ok = valid & (valid2 | ~has_dir) & cam.in_image(uv, 2.0) & (z > 0.3)
+    d2 = uv2 - uv
+    d2 = np.where((has_dir & valid2)[:, None], d2 / np.maximum(np.linalg.norm(d2, axis=1, keepdims=True), 1e-12), np.nan)
+    if separation_px > 0 and ok.any():
+        idx = np.flatnonzero(ok)
+        ok[idx[unresolved_edges(uv[idx], d2[idx], separation_px)]] = False
+    return uv, d2, ok
+
+
+def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_angle_deg: float = 20.0, separation_px: float = 0.0):
+    """Matches of projected LiDAR edge samples to local image edge lines. With ``separation_px`` > 0 (the thin-stripe
+    edge model, opt-in) the local line is fitted to the nearest image line's pixels only (``ImageEdges.line_id``) and
+    LiDAR samples / image pixels with a parallel edge closer than that beside them (``unresolved_edges``) are not
+    matched.
+    Returns (index into scene.lidar.points, line point m (n,2), line normal (n,2), residual (n,))."""
+    ie = scene.image
+    if ie.tree is None or len(scene.lidar.points) == 0:
+        return np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
+    uv, dirs_uv, ok = _project_edges(scene, T, separation_px)
     idx = np.flatnonzero(ok)
     if len(idx) == 0:
         return np.zeros(0, int), np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0)
-    d2 = uv2[idx] - uv[idx]
-    d2 /= np.maximum(np.linalg.norm(d2, axis=1, keepdims=True), 1e-12)
-    hd = has_dir[idx]
-    dist, nn = ie.tree.query(uv[idx], k=k, distance_upper_bound=radius)
-    full = np.all(np.isfinite(dist), axis=1)
-    idx, d2, nn, uvp, hd = idx[full], d2[full], nn[full], uv[idx][full], hd[full]
-    pts = ie.uv[nn]  # (n,k,2)
-    m = pts.mean(1)
-    c = pts - m[:, None, :]
-    cov = np.einsum("nki,nkj->nij", c, c) / k
+    hd = np.all(np.isfinite(dirs_uv[idx]), axis=1)
+    d2 = np.where(hd[:, None], dirs_uv[idx], 0.0)
+    # the k nearest edge pixels *of the nearest pixel's own image line* (when the edges know their lines): two
+    # parallel image lines a few px apart (both borders of a thin stripe) would otherwise give a non-linear or an
+    # in-between local line - a sample between them unmatched, one beside them matched, a pull that depends on depth
+    dist, nn = ie.tree.query(uv[idx], k=3 * k, distance_upper_bound=radius)
+    fin = np.isfinite(dist)
+    nn = np.where(fin, nn, 0)
+    line_id = ie.line_id if separation_px > 0 else None
+    use = fin if separation_px <= 0 else fin & _resolved_pixels(ie, separation_px)[nn]
+    if line_id is not None:
+        first = nn[np.arange(len(nn)), np.argmax(use, axis=1)]  # the nearest usable pixel's line
+        use &= line_id[nn] == line_id[first][:, None]
+    use &= np.cumsum(use, axis=1) <= k
+    cnt = use.sum(1)
+    full = cnt >= (k if line_id is None else min(k, 3))
+    idx, d2, nn, uvp, hd, use, cnt = idx[full], d2[full], nn[full], uv[idx][full], hd[full], use[full], cnt[full].astype(float)
+    wu = use.astype(float)
+    pts = ie.uv[nn]  # (n,3k,2)
+    m = np.einsum("nk,nki->ni", wu, pts) / cnt[:, None]
+    c = (pts - m[:, None, :]) * wu[..., None]
+    cov = np.einsum("nki,nkj->nij", c, c) / cnt[:, None, None]
     w, V = np.linalg.eigh(cov)
     line_dir = V[:, :, 1]
     linear = w[:, 0] < 0.1 * np.maximum(w[:, 1], 1e-9)
     # direction consistency: projected LiDAR edge vs the image line and vs the pixels' gradient-based directions
     cos_l = np.abs(np.sum(line_dir * d2, 1))
-    cos_g = np.abs(np.einsum("nki,ni->nk", ie.dirs[nn], d2)).mean(1)
+    cos_g = np.einsum("nk,nk->n", wu, np.abs(np.einsum("nki,ni->nk", ie.dirs[nn], d2))) / cnt
     cmax = np.cos(np.radians(max_angle_deg))
     keep = linear & (((cos_l > cmax) & (cos_g > cmax)) | ~hd)
     normal = np.stack([-line_dir[:, 1], line_dir[:, 0]], 1)
@@ -243,6 +311,13 @@ def _weighted_fn(x, T0, scenes, matches, fix_t, sw, t_prior, sigma_t, f_scale):
     return np.concatenate([r, np.sqrt(max(len(r), 10) / 10.0) * f_scale * (t - t_prior) / sigma_t])
 
 
+def _separation_px(o) -> float:
+    """Separation (px) below which two parallel projected LiDAR edges count as unresolved (``unresolved_edges``):
+    ``o.unresolved_separation_px``, None = the finest match radius (a second parallel edge closer than that is
+    among the 5 nearest image edge pixels of a match); 0: the thin-stripe edge model is off."""
+    return float(o.radii_px[-1] if o.unresolved_separation_px is None else o.unresolved_separation_px)
+
+
 def alignment_costs(scenes, T, o) -> np.ndarray:
     """Per LiDAR edge sample (all scenes, concatenated) its truncated alignment cost (px^2): the squared
     point-to-line distance of its direction-consistent match at the finest radius, capped there; the cap without a
@@ -252,7 +327,12 @@ def alignment_costs(scenes, T, o) -> np.ndarray:
     for sc in scenes:
         uv, valid, _ = sc.camera.project_from(T, sc.lidar.points)
         c = np.where(valid & sc.camera.in_image(uv, 2.0), cap * cap, np.nan)
-        idx, _, _, r = match_edges(sc, T, cap, o.k_neighbours, o.max_angle_deg)  # matches are in view
+        sep = _separation_px(o)
+        if sep > 0:  # samples beside a parallel edge the image cannot resolve are neither matched nor counted
+            _, _, resolved = _project_edges(sc, T, sep)
+            _, _, seen = _project_edges(sc, T)
+            c[seen & ~resolved] = np.nan
+        idx, _, _, r = match_edges(sc, T, cap, o.k_neighbours, o.max_angle_deg, sep)  # matches are in view
         c[idx] = np.minimum(r * r, cap * cap)
         out.append(c)
     return np.concatenate(out) if out else np.zeros(0)
@@ -305,7 +385,7 @@ def _run_stages(scenes, T, o, t_prior=None):
         rot_only = o.fix_translation or si < o.rotation_only_stages
         converged_stage = False
         for it in range(o.max_rematch):
-            matches = [match_edges(sc, T, radius, o.k_neighbours, o.max_angle_deg) for sc in scenes]
+            matches = [match_edges(sc, T, radius, o.k_neighbours, o.max_angle_deg, _separation_px(o)) for sc in scenes]
             n = sum(len(m[0]) for m in matches)
             if n < max(12, o.min_matches // 4):
                 history.append({"stage": f"r={radius:g}", "iter": it, "matches": n, "note": "too few matches"})
@@ -381,7 +461,7 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
     history: list[dict] = []
     score_before = _score_all(scenes, T0)
     starts = _start_poses(scenes, T0, o, history)
-    matches0 = [match_edges(sc, T0, o.radii_px[-1], o.k_neighbours, o.max_angle_deg) for sc in scenes]
+    matches0 = [match_edges(sc, T0, o.radii_px[-1], o.k_neighbours, o.max_angle_deg, _separation_px(o)) for sc in scenes]
     residuals_before = np.concatenate([m[3] for m in matches0]) if matches0 else np.zeros(0)
     T, converged_stage = _best_start(scenes, starts, o, T0, history)
     valley_settled = True
@@ -390,7 +470,7 @@ def refine_edges(scenes: list[EdgeScene], T_init: np.ndarray, options: RefineOpt
         history += vh
     T, converged_stage, stable = _stability_restarts(scenes, T, converged_stage, o, T0, history)
     # final matching, statistics
-    matches = [match_edges(sc, T, o.radii_px[-1], o.k_neighbours, o.max_angle_deg) for sc in scenes]
+    matches = [match_edges(sc, T, o.radii_px[-1], o.k_neighbours, o.max_angle_deg, _separation_px(o)) for sc in scenes]
     n_match = sum(len(m[0]) for m in matches)
     r_after = _residual_fn(np.zeros(6), T, scenes, matches)
     inl = np.abs(r_after) < 3 * o.loss_scale_px
