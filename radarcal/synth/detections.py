@@ -40,7 +40,7 @@ from radarcal import geometry
 from radarcal.field import FieldModel
 from radarcal.synth.field import RobotSpec, SceneBoxes, default_rig, image_box, livox_rosette_dirs, make_robots, raycast, render_background, robot_states, scene_boxes
 
-__all__ = ["MatchConfig", "write_match_replay", "visible_boxes", "perturb_T", "four_point_pnp", "people_states", "occlusion_robots"]
+__all__ = ["MatchConfig", "write_match_replay", "visible_boxes", "perturb_T", "four_point_pnp", "match_rngs", "people_states", "occlusion_robots"]
 
 _ALL_LABELS = [f"{c}_{n}" for c in ("red", "blue") for n in (1, 2, 3, 4, 5, 6, 7)]
 AERIAL_SIZE = (0.8, 0.8, 0.35)
@@ -319,12 +319,17 @@ def _fmt(x: float, nd: int = 4) -> float:
     return float(round(float(x), nd))
 
 
+def match_rngs(seed: int) -> tuple[np.random.Generator, ...]:
+    """The five independent generators of a ``synth match`` replay: (rig, robots, LiDAR, detections, calibration)."""
+    return tuple(np.random.default_rng(s) for s in np.random.SeedSequence(seed + 7919).spawn(5))
+
+
 def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchConfig, generator: str = "radarcal synth match", progress: Callable | None = None) -> dict:
     """Generate the scene for ``cfg`` and write a replay folder (clouds/, detections.jsonl, truth.jsonl, calib.yaml,
     meta.json, truth.json; no images). Returns a summary."""
     out = Path(out_dir)
     (out / "clouds").mkdir(parents=True, exist_ok=True)
-    rng_rig, rng_rob, rng_lidar, rng_det, rng_cal = (np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed + 7919).spawn(5))
+    rng_rig, rng_rob, rng_lidar, rng_det, rng_cal = match_rngs(cfg.seed)
     rig = default_rig(field_model, rng_rig, cfg.station)
     if cfg.scenario == "occlusion":
         robots = occlusion_robots(field_model)
