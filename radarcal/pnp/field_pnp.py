@@ -132,10 +132,16 @@ def _normalised(camera: Camera, uv: np.ndarray) -> np.ndarray:
 
 
 def _closed_form(P: np.ndarray, xy: np.ndarray, flags: int) -> list[np.ndarray]:
+    """Every pose ``[rotvec, t]`` (T_cam_field) the OpenCV solver ``flags`` returns for normalised image points
+    ``xy``; P3P takes exactly three points (``cv2.solveP3P``: ``solvePnPGeneric`` refuses three since OpenCV 5)."""
     import cv2
 
+    P, xy = P.astype(np.float64), xy.astype(np.float64).reshape(-1, 1, 2)
     try:
-        n, rvecs, tvecs, _ = cv2.solvePnPGeneric(P.astype(np.float64), xy.astype(np.float64).reshape(-1, 1, 2), np.eye(3), None, flags=flags)
+        if flags == cv2.SOLVEPNP_P3P:
+            n, rvecs, tvecs = cv2.solveP3P(P, xy, np.eye(3), None, flags=flags)
+        else:
+            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(P, xy, np.eye(3), None, flags=flags)
     except cv2.error:
         return []
     return [np.concatenate([np.ravel(r), np.ravel(t)]) for r, t in zip(rvecs, tvecs)][: int(n)] if n else []

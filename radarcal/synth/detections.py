@@ -15,8 +15,8 @@ boundary, an aerial robot):
   ``cloud_latency_s``), its points in firing order (``meta.json``: ``cloud_stamp: arrival``, ``cloud_sweep_s``,
   ``cloud_latency_s``).
 * **Calibration error**: the bundle's ``T_cam_lidar`` is the truth turned by ``calib_rot_deg`` about a random axis
-  and shifted by ``calib_trans_m``; the field pose ``T_field_cam`` comes from a four-point PnP on landmark pixels
-  with ``pnp_px`` noise.
+  and shifted by ``calib_trans_m``; the field pose is ``radarcal field-pnp``'s (same solver, bundle entry and
+  session) on four landmark clicks with ``pnp_px`` noise, written as ``field_picks.csv``.
 
 Scenarios: ``random`` (robots on smooth random paths) and ``occlusion`` (two pairs of robots crossing behind each
 other in the camera's view, one robot driving behind the central highland, one out of the camera's view but in the
@@ -40,7 +40,7 @@ from radarcal import geometry
 from radarcal.field import FieldModel
 from radarcal.synth.field import RobotSpec, SceneBoxes, default_rig, image_box, livox_rosette_dirs, make_robots, raycast, render_background, robot_states, scene_boxes
 
-__all__ = ["MatchConfig", "write_match_replay", "visible_boxes", "perturb_T", "four_point_pnp", "people_states", "occlusion_robots"]
+__all__ = ["MatchConfig", "write_match_replay", "visible_boxes", "perturb_T", "four_point_clicks", "match_rngs", "people_states", "occlusion_robots"]
 
 _ALL_LABELS = [f"{c}_{n}" for c in ("red", "blue") for n in (1, 2, 3, 4, 5, 6, 7)]
 AERIAL_SIZE = (0.8, 0.8, 0.35)
@@ -116,9 +116,9 @@ def perturb_T(T: np.ndarray, rot_deg: float, trans_m: float, rng: np.random.Gene
     return out
 
 
-def four_point_pnp(field_model: FieldModel, rig, px_sigma: float, rng: np.random.Generator) -> tuple[np.ndarray, list[str]]:
-    """``T_field_cam`` from the four visible landmarks spanning the largest image quadrilateral, clicked with
-    ``px_sigma`` noise (cv2 SQPnP, then Levenberg-Marquardt refinement)."""
+def four_point_clicks(field_model: FieldModel, rig, px_sigma: float, rng: np.random.Generator) -> tuple[list[str], np.ndarray]:
+    """The four visible landmarks spanning the largest image quadrilateral and their clicks: the true pixels
+    (``rig.camera``, ``rig.T_field_cam``) plus N(0, ``px_sigma``) noise per axis. Returns (names, (4,2) px)."""
     import itertools
 
     import cv2
@@ -142,13 +142,7 @@ def four_point_pnp(field_model: FieldModel, rig, px_sigma: float, rng: np.random
             best, best_area = list(q), a
     if best is None:
         raise ValueError("fewer than four landmarks visible for the field PnP")
-    clicks = uv[best] + rng.normal(0, px_sigma, (4, 2))
-    ok, rvec, tvec = cv2.solvePnP(P[best].astype(np.float64), clicks.astype(np.float64), cam.K, cam.dist, flags=cv2.SOLVEPNP_SQPNP)
-    if not ok:
-        raise ValueError("field PnP failed")
-    rvec, tvec = cv2.solvePnPRefineLM(P[best].astype(np.float64), clicks.astype(np.float64), cam.K, cam.dist, rvec, tvec)
-    T_cam_field_est = geometry.make_T(cv2.Rodrigues(rvec)[0], tvec.ravel())
-    return geometry.invert_T(T_cam_field_est), [names[i] for i in best]
+    return [names[i] for i in best], uv[best] + rng.normal(0, px_sigma, (4, 2))
 
 
 # --- scene contents ------------------------------------------------------------------------------------------------
@@ -319,12 +313,17 @@ def _fmt(x: float, nd: int = 4) -> float:
     return float(round(float(x), nd))
 
 
+def match_rngs(seed: int) -> tuple[np.random.Generator, ...]:
+    """The five independent generators of a ``synth match`` replay: (rig, robots, LiDAR, detections, calibration)."""
+    return tuple(np.random.default_rng(s) for s in np.random.SeedSequence(seed + 7919).spawn(5))
+
+
 def write_match_replay(out_dir: str | Path, field_model: FieldModel, cfg: MatchConfig, generator: str = "radarcal synth match", progress: Callable | None = None) -> dict:
     """Generate the scene for ``cfg`` and write a replay folder (clouds/, detections.jsonl, truth.jsonl, calib.yaml,
     meta.json, truth.json; no images). Returns a summary."""
     out = Path(out_dir)
     (out / "clouds").mkdir(parents=True, exist_ok=True)
-    rng_rig, rng_rob, rng_lidar, rng_det, rng_cal = (np.random.default_rng(s) for s in np.random.SeedSequence(cfg.seed + 7919).spawn(5))
+    rng_rig, rng_rob, rng_lidar, rng_det, rng_cal = match_rngs(cfg.seed)
     rig = default_rig(field_model, rng_rig, cfg.station)
     if cfg.scenario == "occlusion":
         robots = occlusion_robots(field_model)
@@ -490,21 +489,25 @@ def _write_still(out: Path, field_model: FieldModel, rig) -> None:
 
 def _write_match_bundle(path: Path, field_model: FieldModel, rig, cfg: MatchConfig, rng_cal, generator: str) -> tuple[dict, list[str]]:
     """The calibration a station would have: LiDAR-camera off by ``calib_rot_deg`` / ``calib_trans_m``, the field
-    pose from a four-point click PnP. Returns the field pose's errors and the landmarks clicked."""
-    from radarcal.bundle import Bundle, Provenance, save_bundle
+    pose from four clicks (``field_picks.csv`` beside the bundle) stored by ``radarcal field-pnp``'s own
+    ``calibrate(...).store(...)``. Returns the field pose's errors and the landmarks clicked."""
+    from radarcal.bundle import Bundle, Provenance
+    from radarcal.pnp.calibrate import FieldPnPOptions, calibrate
+    from radarcal.pnp.picks import read_picks, write_picks
 
     T_cam_lidar_est = perturb_T(rig.T_cam_lidar, cfg.calib_rot_deg, cfg.calib_trans_m, rng_cal)
-    T_field_cam_est, pnp_names = four_point_pnp(field_model, rig, cfg.pnp_px, rng_cal)
+    picks = path.parent / "field_picks.csv"
+    write_picks(picks, *four_point_clicks(field_model, rig, cfg.pnp_px, rng_cal))
+    pnp_names, clicks = read_picks(picks, field_model.landmarks)  # what `radarcal field-pnp --points` reads
     bnd = Bundle()
+    bnd.path = path
     prov = Provenance(command=generator)
     bnd.set_camera("cam0", rig.camera, rms_px=0.3, provenance=prov, extra={"synthetic": True})
     bnd.set_sensor("lidar0", type="lidar", model="Livox Mid-70 (simulated, per-point firing time)", fov_deg=70.4)
     bnd.set_transform("cam0", "lidar0", T_cam_lidar_est, method=f"synthetic truth perturbed {cfg.calib_rot_deg} deg / {cfg.calib_trans_m} m",
                       sigma={"rot_deg": cfg.calib_rot_deg, "trans_m": cfg.calib_trans_m}, provenance=prov)  # fmt: skip
-    bnd.set_transform("field", "cam0", T_field_cam_est, method=f"four-point PnP ({', '.join(pnp_names)}), {cfg.pnp_px} px clicks", provenance=prov)
-    bnd.field_model = field_model.to_dict()
-    save_bundle(bnd, path)
-    dR = geometry.invert_T(rig.T_field_cam) @ T_field_cam_est
-    err = {"field_pose_rot_deg": float(np.rad2deg(np.arccos(np.clip((np.trace(dR[:3, :3]) - 1) / 2, -1, 1)))),
-           "field_pose_cam_centre_m": float(np.linalg.norm(T_field_cam_est[:3, 3] - rig.T_field_cam[:3, 3]))}  # fmt: skip
+    cal = calibrate(bnd, "cam0", field_model, field_model.name, pnp_names, clicks, picks, FieldPnPOptions(click_sigma=cfg.pnp_px))
+    cal.store(bnd, path, generator)
+    rot_deg, _ = geometry.pose_error(cal.result.T_field_cam, rig.T_field_cam)
+    err = {"field_pose_rot_deg": rot_deg, "field_pose_cam_centre_m": float(np.linalg.norm(cal.result.camera_position - rig.T_field_cam[:3, 3]))}
     return err, pnp_names

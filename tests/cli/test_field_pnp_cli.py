@@ -88,7 +88,7 @@ def test_human_output_and_ground_fallback(work, capsys):
         ("three", "at least 4 picks"),
         ("coincident", "same point clicked twice"),
         ("collinear", "collinear"),
-        ("swapped", "implausible"),
+        ("swapped", "order"),  # refused: implausible, or the plausible poses fit 180 px; the message asks about the order
         ("bad_pick", "above the threshold"),
         ("garbage", "line 2: expected name,u,v"),
         ("outside", "outside the 1280x1024 image"),

@@ -71,3 +71,22 @@ def test_people_walk_outside_the_field(rep):
         for p in tr["people"]:
             x, y = p["p_field"][:2]
             assert x < -0.2 or x > L + 0.2 or y < -0.2 or y > W + 0.2
+
+
+def test_field_pose_is_field_pnps_on_the_written_clicks(tmp_path):
+    """Seed 18 (four nearly coplanar landmarks): the generator's private SQPnP + LM put the camera 135.8 deg / 43 m
+    off; the bundle now holds what ``radarcal field-pnp --points field_picks.csv`` stores, within 1 deg / 0.3 m."""
+    from radarcal import geometry
+    from radarcal.pnp.picks import read_picks
+
+    out = tmp_path / "r18"
+    s = write_match_replay(out, builtin_field("rmuc2024"), MatchConfig(frames=3, seed=18, lidar_points=500))
+    truth = json.loads((out / "truth.json").read_text())
+    b = load_bundle(out / "calib.yaml")
+    deg, _ = geometry.pose_error(b.T("field", "cam0"), np.array(truth["T_field_cam0"]))
+    centre_m = np.linalg.norm(b.T("field", "cam0")[:3, 3] - np.array(truth["T_field_cam0"])[:3, 3])
+    assert deg < 1.0 and centre_m < 0.3
+    assert s["field_pose_rot_deg"] == pytest.approx(deg) and s["field_pose_cam_centre_m"] == pytest.approx(centre_m)
+    assert b.transforms["T_cam0_field"].method.startswith("field-pnp") and "field_pnp/cam0" in b.sessions
+    names, uv = read_picks(out / "field_picks.csv")
+    assert names == truth["pnp_landmarks"] and b.transforms["T_cam0_field"].residual["n_picks"] == 4
