@@ -4,6 +4,7 @@ byte-identical tracks; the referee input replayed at its times; the output on a 
 from __future__ import annotations
 
 import json
+from collections import Counter
 import os
 import threading
 import time
@@ -88,7 +89,10 @@ def test_record_then_two_replays_are_byte_identical(sample, tmp_path, capsys):
     assert outs[0] == outs[1]
     lines = [json.loads(x) for x in outs[0].decode().splitlines()]
     assert len(lines) == n_frames and "latency_ms" not in lines[0]
-    assert sum(r["source"] == "depth" for ln in lines for r in ln["robots"]) > 50  # the replayed LiDAR gave depth
+    sources = Counter(r["source"] for ln in lines for r in ln["robots"])
+    print("sources", dict(sources))
+    # the replayed LiDAR located robots: its clusters (LiDAR-first, the default) or the depth in their boxes
+    assert sources["lidar"] + sources["depth"] > 0.6 * sum(sources.values()), sources
 
 
 def _positions(path: Path) -> dict[str, dict[str, tuple]]:
