@@ -105,6 +105,7 @@ class LidarFirst:
         # without box fixes a far robot seen only by a few returns gets a track from them (with box fixes its box
         # does: sparse-born tracks there took box-only fixes and labels of other robots, measured: docs/runtime.md)
         self.tracker.sparse_births = self.cfg.lidar_only
+        self.tracker.same_robot_m = self.cfg.exclusion_m
         self.window: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=max(1, self.cfg.window_sweeps))
         self.camera = camera
         self.T_cam_field = invert_T(T_field_cam) if T_field_cam is not None else None

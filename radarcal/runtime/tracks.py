@@ -258,7 +258,9 @@ class Tracker3D:
         self.coast_damping_s = 0.5
         self.sparse_gate_m = 0.8  # a sparse component farther than this from a track's prediction is not that robot
         self.sparse_box_s = 0.15  # a track a camera box fixed this recently takes no sparse component (update_sparse) ...
-        self.sparse_crowd_m = 1.5  # ... when another track is this near (a pile-up)
+        self.sparse_crowd_m = 1.5  # ... when another track is this near (a pile-up) ...
+        # ... and not nearer than this: two tracks that close are one robot (LidarFirstConfig.exclusion_m sets it)
+        self.same_robot_m = 0.6
         self.sparse_births = False  # sparse components start tracks (LidarFirstConfig.lidar_only: not with box fixes)
         self.sparse_birth_m = 1.0  # ... when at least this far from every track (nearer: a fragment of that robot)
         self.learn_s = 2.0  # tracks born within this long of the first cluster are static suspects (Track3D.evidence)
@@ -418,7 +420,10 @@ class Tracker3D:
     def update_sparse(self, centre: np.ndarray, sigma: np.ndarray, t: np.ndarray, aerial: np.ndarray, skip: set[int]) -> list[int]:
         """Sparse components (too few returns or too small for a robot of their own, :attr:`Clusters.sparse`) taken
         by the confirmed or lost tracks not updated by this cloud (ids not in ``skip``), except those a camera box
-        fixed within ``sparse_box_s`` that have another track within ``sparse_crowd_m``: a far robot's 3-7 returns
+        fixed within ``sparse_box_s`` that have another track within ``sparse_crowd_m`` (and not within ``same_robot_m``:
+        that is a second track on the same robot, which box fixes of a robot behind dragged there; barring both from
+        the robot's returns kept them off the LiDAR, so the box fixes kept coming — generated match seed 2 with
+        blue_2 missed: its track was moved onto blue_5 and guessing lost it): a far robot's 3-7 returns
         keep its track measured. Hungarian on distance within
         ``sparse_gate_m`` (and the track's own gate) over every track: a component nearest a track that is measured
         otherwise (a cluster of this cloud, a box fix) or tentative is that robot's and moves nobody. With
@@ -440,7 +445,7 @@ class Tracker3D:
         states = (CONFIRMED, LOST, TENTATIVE) if self.sparse_births else (CONFIRMED, LOST)
         xy = self.predicted_xy(tm)
         gap = np.linalg.norm(xy[:, None] - xy[None], axis=2) + np.diag(np.full(len(xy), np.inf))  # (T,T) between tracks
-        crowded = gap.min(1) < self.sparse_crowd_m if len(xy) > 1 else np.zeros(len(xy), bool)
+        crowded = ((gap >= self.same_robot_m) & (gap < self.sparse_crowd_m)).any(1)  # a track nearer is one robot, no pile-up
         takers = {tr.id for tr, c in zip(self.tracks, crowded) if tr.id not in skip and tr.state in states and tr.n_lidar and not (c and tm - tr.t_box <= self.sparse_box_s)}
         pairs = self._assign(self.tracks, centre, sigma, t, aerial, max_gate_m=self.sparse_gate_m)
         if self.sparse_births:

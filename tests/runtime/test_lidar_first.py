@@ -441,3 +441,21 @@ def test_a_robot_standing_still_from_the_start_is_kept_and_reported_when_it_move
     # without that protection the standing robot is learnt as background within its first seconds
     rows = _standing_robot_run(0.0)
     assert min(n_dyn for t, _, _, n_dyn, _ in rows if 2.0 <= t < 3.0) < 5
+
+
+def test_sparse_returns_go_to_a_camera_fixed_track_beside_a_duplicate_but_not_in_a_pile_up():
+    """Two camera-fixed tracks 1.0 m apart are a pile-up: neither takes a sparse component (its box fixes keep it on
+    its robot). Two 0.2 m apart (< ``same_robot_m``) are one robot twice, no pile-up: the nearer takes its returns."""
+    for gap, taken in ((1.0, False), (0.2, True)):
+        tk = Tracker3D()
+        for k in range(3):
+            t = 0.1 * k
+            tk.update_clusters(np.array([[18.0, 6.0, 0.0], [18.0 + gap, 6.0, 0.0]]), np.array([0.1, 0.1]), np.array([t, t]), np.array([False, False]),
+                               np.array([[0.5, 0.5, 0.45]] * 2), [(np.zeros(3), np.ones(3))] * 2, t)  # fmt: skip
+            tk.step(t)
+        a, b = sorted(tk.tracks, key=lambda tr: tr.x[0])
+        assert a.state == b.state == CONFIRMED
+        t = 0.3
+        a.t_box = b.t_box = t  # both box-fixed just now
+        ids = tk.update_sparse(np.array([[17.95, 6.0, 0.0]]), np.array([0.15]), np.array([t]), np.array([False]), set())
+        assert (ids == [a.id]) == taken and (ids == [-1]) == (not taken)
