@@ -24,10 +24,6 @@ def replays(tmp_path_factory):
     return hard, absent
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="cross-branch regression found in session 8: guess on / off both 18.1 correct s (wrong 4.4 / 2.8 s); bisected to merge ee65c84 (lfirst2 round-3 tracker x multicam2 box fixes), both parents pass",
-)
 def test_guess_raises_correct_marks_of_a_robot_lost_by_both_sensors(replays):
     from benchmarks.marking_offline import play
     from benchmarks.referee import _row
