@@ -185,7 +185,7 @@ def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_
     # the k nearest edge pixels *of the nearest pixel's own image line* (when the edges know their lines): two
     # parallel image lines a few px apart (both borders of a thin stripe) would otherwise give a non-linear or an
     # in-between local line - a sample between them unmatched, one beside them matched, a pull that depends on depth
-    dist, nn = ie.tree.query(uv[idx], k=3 * k, distance_upper_bound=radius)
+    dist, nn = ie.tree.query(uv[idx], k=k if separation_px <= 0 else 3 * k, distance_upper_bound=radius)  # the model off: the k nearest
     fin = np.isfinite(dist)
     nn = np.where(fin, nn, 0)
     line_id = ie.line_id if separation_px > 0 else None
@@ -198,7 +198,7 @@ def match_edges(scene: EdgeScene, T: np.ndarray, radius: float, k: int = 5, max_
     full = cnt >= (k if line_id is None else min(k, 3))
     idx, d2, nn, uvp, hd, use, cnt = idx[full], d2[full], nn[full], uv[idx][full], hd[full], use[full], cnt[full].astype(float)
     wu = use.astype(float)
-    pts = ie.uv[nn]  # (n,3k,2)
+    pts = ie.uv[nn]  # (n,k,2); (n,3k,2) with the thin-stripe model
     m = np.einsum("nk,nki->ni", wu, pts) / cnt[:, None]
     c = (pts - m[:, None, :]) * wu[..., None]
     cov = np.einsum("nki,nkj->nij", c, c) / cnt[:, None, None]

@@ -72,8 +72,8 @@ def visible_parts(full: np.ndarray, depth: np.ndarray, cell: float = 3.0) -> tup
     return vis, frac
 
 
-def _overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Intersection areas (A,B) of boxes (A,4), (B,4)."""
+def intersection_areas(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Intersection areas (A,B) of pixel boxes xyxy (A,4), (B,4); 0 where they do not overlap."""
     w = np.clip(np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0]), 0, None)
     h = np.clip(np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1]), 0, None)
     return w * h
@@ -88,7 +88,7 @@ def match_boxes(vis: np.ndarray, boxes: np.ndarray, pad_px: float = 4.0, min_qua
         return []
     good = np.isfinite(vis[:, 0])
     v = np.where(good[:, None], vis, 0.0) + np.array([-pad_px, -pad_px, pad_px, pad_px])
-    inter = _overlap(v, boxes)
+    inter = intersection_areas(v, boxes)
     area_v = (v[:, 2] - v[:, 0]) * (v[:, 3] - v[:, 1])
     area_b = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
     cov_b = inter / np.maximum(area_b[None], 1e-9)

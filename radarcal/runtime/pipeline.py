@@ -25,6 +25,7 @@ from radarcal.runtime import referee as rp
 from radarcal.runtime.config import LOCALISE_MODES, RunConfig
 from radarcal.runtime.detector import Detection
 from radarcal.runtime.fusion import CloudQueue, SurfaceFilter
+from radarcal.runtime.identity import intersection_areas
 from radarcal.runtime.localise import Localiser
 from radarcal.runtime.tracks import TrackManager
 
@@ -131,8 +132,13 @@ def _number_of(label: str | None) -> int | None:
 def boxes_in_front(boxes: np.ndarray, frame_boxes: np.ndarray) -> np.ndarray:
     """(K, M) bool: box m of the camera frame (pixels xyxy) overlaps box k and its bottom edge is lower (> 2 px) in
     the image — a robot standing nearer, whose pixels hide part of box k."""
-    b, f = np.asarray(boxes, float).reshape(-1, 1, 4), np.asarray(frame_boxes, float).reshape(1, -1, 4)
-    return (f[..., 3] > b[..., 3] + 2) & (f[..., 0] < b[..., 2]) & (f[..., 2] > b[..., 0]) & (f[..., 1] < b[..., 3]) & (f[..., 3] > b[..., 1])
+    b, f = np.asarray(boxes, float).reshape(-1, 4), np.asarray(frame_boxes, float).reshape(-1, 4)
+    return (f[None, :, 3] > b[:, None, 3] + 2) & (intersection_areas(b, f) > 0)
+
+
+def _overlapping_others(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(A, B) bool: box b[j] overlaps box a[i] and is not the same box (pixel boxes xyxy)."""
+    return (intersection_areas(a, b) > 0) & ~np.all(a[:, None] == b[None], axis=2)
 
 
 def no_ground_ray(boxes: np.ndarray, frame_boxes: np.ndarray, min_aspect: float) -> np.ndarray:
@@ -272,24 +278,24 @@ class Pipeline:
         depth are in that order, whatever their bottom edges say — a nearer robot whose bottom a terrain edge
         hides has its box bottom higher than the robot behind it (both cameras of family A / B: most of the box
         depths over 0.4 m short beyond 15 m). A box without 3 returns of its own keeps the bottom-edge order."""
-        b = np.asarray(boxes, float).reshape(-1, 1, 4)
-        f = np.asarray(frame_boxes, float).reshape(1, -1, 4)
-        front = boxes_in_front(boxes, frame_boxes)
-        overlap = (f[..., 0] < b[..., 2]) & (f[..., 2] > b[..., 0]) & (f[..., 1] < b[..., 3]) & (f[..., 3] > b[..., 1]) & ~np.all(f == b, axis=2)
+        b = np.asarray(boxes, float).reshape(-1, 4)
+        f = np.asarray(frame_boxes, float).reshape(-1, 4)
+        front = boxes_in_front(b, f)
+        overlap = _overlapping_others(b, f)
         if not overlap.any():
             return front
-        ff = f[0]
-        ff_overlap = (ff[None, :, 0] < ff[:, None, 2]) & (ff[None, :, 2] > ff[:, None, 0]) & (ff[None, :, 1] < ff[:, None, 3]) & (ff[None, :, 3] > ff[:, None, 1])
-        np.fill_diagonal(ff_overlap, False)
 
         def own_depth(box, others):
             bd = queue.depth_in_box(box, t, max_age_s=self.cfg.depth_max_age_s, exclude=others if len(others) else None)
             return bd.depth if bd is not None and bd.n >= 3 else np.nan  # one or two returns: maybe the background
 
-        need = np.flatnonzero(overlap.any(axis=0))
-        own_f = np.full(len(ff), np.nan)
-        own_f[need] = [own_depth(ff[m], ff[ff_overlap[m]]) for m in need]
-        own_b = np.array([own_depth(b[k, 0], ff[overlap[k]]) if overlap[k].any() else np.nan for k in range(len(b))])
+        # own depths once per frame box (the boxes located are frame boxes too: looked up, not computed twice)
+        ff_overlap = _overlapping_others(f, f)
+        same = np.all(b[:, None] == f[None], axis=2)
+        need = np.flatnonzero(overlap.any(axis=0) | (same & overlap.any(axis=1)[:, None]).any(axis=0))
+        own_f = np.full(len(f), np.nan)
+        own_f[need] = [own_depth(f[m], f[ff_overlap[m]]) for m in need]
+        own_b = np.array([np.nan if not overlap[k].any() else own_f[np.argmax(same[k])] if same[k].any() else own_depth(b[k], f[overlap[k]]) for k in range(len(b))])
         gap = np.maximum(0.35, 0.03 * own_b[:, None])
         known = np.isfinite(own_b)[:, None] & np.isfinite(own_f)[None, :]
         return overlap & np.where(known, own_f[None, :] < own_b[:, None] - gap, front) | (front & known & (np.abs(own_f[None, :] - own_b[:, None]) <= gap))
