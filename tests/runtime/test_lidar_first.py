@@ -459,3 +459,59 @@ def test_sparse_returns_go_to_a_camera_fixed_track_beside_a_duplicate_but_not_in
         a.t_box = b.t_box = t  # both box-fixed just now
         ids = tk.update_sparse(np.array([[17.95, 6.0, 0.0]]), np.array([0.15]), np.array([t]), np.array([False]), set())
         assert (ids == [a.id]) == taken and (ids == [-1]) == (not taken)
+
+
+def _labelled_ticks(tk, boxed_of, ticks, t0=1.0, dt=1 / 30):
+    """Run the vote bookkeeping of LidarFirst for ``ticks``: each tick the tracks in ``boxed_of(k)`` (track id ->
+    label) get that box's vote and the LiDAR sees them; then the hand-over and the labels. Returns the labels per tick."""
+    from radarcal.runtime.identity import add_votes
+    from radarcal.runtime.lidar_first import hand_over_votes
+
+    out = []
+    for k in range(ticks):
+        t = t0 + k * dt
+        boxed = boxed_of(k)
+        for tr in tk.tracks:
+            if tr.id in boxed:
+                add_votes(tr.votes, boxed[tr.id], 0.9)
+                tr.t_lidar = t
+        hand_over_votes(tk, boxed, t)
+        for tr, lab in zip(tk.tracks, assign_labels([tr.votes for tr in tk.tracks])):
+            tr.label = lab
+        out.append({tr.id: tr.label for tr in tk.tracks})
+    return out
+
+
+def _two_tracks():
+    tk = Tracker3D()
+    holder = tk._new(np.array([12.7, 9.0]), 0.05, 0.0, 0.0, "lidar")  # a copy of red_3 left on another robot
+    holder.votes, holder.state, holder.n_lidar, holder.t_lidar = {"red_3": 10.0}, CONFIRMED, 20, 0.0
+    on_robot = tk._new(np.array([14.4, 8.2]), 0.05, 0.0, 0.0, "lidar")  # the LiDAR track on red_3, 1.9 m away
+    on_robot.state, on_robot.n_lidar = CONFIRMED, 20
+    for tr, lab in zip(tk.tracks, assign_labels([tr.votes for tr in tk.tracks])):
+        tr.label = lab
+    return tk, holder, on_robot
+
+
+def test_boxes_of_a_label_on_a_lidar_track_take_the_label_from_its_far_unboxed_holder():
+    """Issue #15, synth match seed 3 (red_3 3.8-5.4 s): a track holding red_3 with votes saturated at 10 sits 1.9 m
+    away and is not boxed with red_3; the LiDAR track on red_3 gets red_3's boxes. Votes alone would need ~1 s to
+    overtake (decay 0.93 per box); after HAND_OVER_TICKS boxed ticks in a row the label is the LiDAR track's."""
+    from radarcal.runtime.lidar_first import HAND_OVER_TICKS
+
+    tk, holder, on_robot = _two_tracks()
+    labels = _labelled_ticks(tk, lambda k: {on_robot.id: "red_3"}, HAND_OVER_TICKS + 2)
+    assert all(lab[holder.id] == "red_3" for lab in labels[: HAND_OVER_TICKS - 1])  # not on a few boxes
+    assert labels[-1][on_robot.id] == "red_3" and labels[-1][holder.id] is None
+
+
+def test_a_hidden_robot_keeps_its_label_and_a_short_misread_spell_does_not_take_it():
+    """Seed 7 blue_3 (hidden 4.4-5.5 s): nothing boxes the label, so its coasting holder keeps it; a LiDAR track
+    misread as red_3 in runs shorter than HAND_OVER_TICKS (the 2 % label swaps) does not take it either."""
+    from radarcal.runtime.lidar_first import HAND_OVER_TICKS
+
+    tk, holder, on_robot = _two_tracks()
+    assert all(lab[holder.id] == "red_3" for lab in _labelled_ticks(tk, lambda k: {}, 40))
+    spell = HAND_OVER_TICKS - 2
+    misread = _labelled_ticks(tk, lambda k: {on_robot.id: "red_3" if k % (spell + 1) < spell else "blue_4"}, 20)
+    assert all(lab[holder.id] == "red_3" for lab in misread)
