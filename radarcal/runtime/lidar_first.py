@@ -26,8 +26,9 @@ from radarcal.runtime.clusters import ClusterParams, cluster_points
 from radarcal.runtime.identity import add_votes, assign_labels, match_boxes, project_tracks, visible_parts
 from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Track3D, Tracker3D  # noqa: F401
 
-__all__ = ["LidarFirstConfig", "LidarFirst", "point_times", "fuse_fixes", "box_fix_order", "misread_holder", "on_other_robot", "LEGIBLE_PX"]
+__all__ = ["LidarFirstConfig", "LidarFirst", "point_times", "fuse_fixes", "box_fix_order", "misread_holder", "on_other_robot", "hand_over_votes", "LEGIBLE_PX"]
 
+LIDAR_NOW_S = 0.3  # a track whose last LiDAR cluster is younger than this is seen by the LiDAR now
 LEGIBLE_PX = 64.0  # box height (px) from which a robot's armour number (~1/4 of it) counts as fully legible
 
 
@@ -275,13 +276,13 @@ class LidarFirst:
         for fx in box_fix_order(fuse_fixes(fixes), holder):
             tf, label, pf = fx["t"], fx["label"], fx["p"]
             tr = holder.get(label)
-            if tr is not None and tf - tr.t_lidar < 0.3:
+            if tr is not None and tf - tr.t_lidar < LIDAR_NOW_S:
                 continue  # the LiDAR sees that robot: a box-only fix would only add the box path's errors
             if on_other_robot(tk, tr, label, pf[:2], fx["sigma"], tf, self.cfg.exclusion_m + 2.0 * fx["sigma"], fx.get("behind", False)):
                 continue  # its depth is the robot in front, which the LiDAR sees under its own label
             tr = misread_holder(tk, tr if tr is None or tr.id not in fixed else None, label, pf[:2], fx["sigma"], tf, fixed)
             # a LiDAR track where the box puts the robot (its projection missed the box): identity by position
-            near = [o for o in tk.tracks if o.n_lidar and tf - o.t_lidar < 0.3 and o.label in (None, label)
+            near = [o for o in tk.tracks if o.n_lidar and tf - o.t_lidar < LIDAR_NOW_S and o.label in (None, label)
                     and np.linalg.norm(o.x[:2] + o.x[2:] * (tf - o.t) - pf[:2]) < 0.8]  # fmt: skip
             got = near[0] if near else tk.update_box(label, pf[:2], fx["sigma"], tf, float(pf[2]), fx["source"], tr)
             if got is None:
@@ -487,7 +488,7 @@ def misread_holder(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray
         return tr
     colour = str(label).split("_")[0]
     alt = [o for o in tk.tracks if o.label is not None and o.label != label and o.label.split("_")[0] == colour and o.id not in fixed
-           and t - o.t_lidar >= 0.3 and not o.aerial and gated(o)]  # fmt: skip
+           and t - o.t_lidar >= LIDAR_NOW_S and not o.aerial and gated(o)]  # fmt: skip
     if alt:
         return min(alt, key=lambda o: float(np.linalg.norm(o.x[:2] + o.x[2:] * (t - o.t) - xy)))
     return tr
@@ -503,18 +504,20 @@ def hand_over_votes(tk: Tracker3D, boxed: dict[int, str], t: float) -> None:
     label is ``HAND_OVER_M`` or more away and not boxed with it, swaps its vote for the label with the holder's. The
     holder's votes never fade while nothing boxes it (a robot hidden with its right label keeps it), so without
     this a second copy of a robot holds the label against the track on it (issue #15, seed 3: red_3 2.5-3.6 m off)."""
-    holder = {tr.label: tr for tr in tk.tracks if tr.label is not None}
-    for tr in tk.tracks:
+    holder = {tr.label: k for k, tr in enumerate(tk.tracks) if tr.label is not None}
+    xy = tk.predicted_xy(t, tk.tracks)
+    for k, tr in enumerate(tk.tracks):
         label = boxed.get(tr.id)
         h = holder.get(label)
-        if label is None or h is None or h is tr or t - tr.t_lidar >= 0.3 or boxed.get(h.id) == label \
-                or float(np.linalg.norm(tk.predicted_xy(t, [h])[0] - tk.predicted_xy(t, [tr])[0])) < HAND_OVER_M:
+        if label is None or h is None or h == k or t - tr.t_lidar >= LIDAR_NOW_S or boxed.get(tk.tracks[h].id) == label \
+                or float(np.linalg.norm(xy[h] - xy[k])) < HAND_OVER_M:
             tr.contest = None
             continue
         n = tr.contest[1] + 1 if tr.contest is not None and tr.contest[0] == label else 1
         tr.contest = (label, n)
-        if n >= HAND_OVER_TICKS and h.votes.get(label, 0.0) > tr.votes.get(label, 0.0):
-            tr.votes[label], h.votes[label] = h.votes[label], tr.votes.get(label, 0.0)
+        h_votes = tk.tracks[h].votes
+        if n >= HAND_OVER_TICKS and h_votes.get(label, 0.0) > tr.votes.get(label, 0.0):
+            tr.votes[label], h_votes[label] = h_votes[label], tr.votes.get(label, 0.0)
             tr.contest = None
 
 
@@ -536,6 +539,6 @@ def on_other_robot(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray
         return False
     if not (lidar_track or behind):
         return False
-    others = [o for o in tk.tracks if o.label not in (None, label) and not o.aerial and t - o.t_lidar < 0.3]
+    others = [o for o in tk.tracks if o.label not in (None, label) and not o.aerial and t - o.t_lidar < LIDAR_NOW_S]
     d = np.linalg.norm(tk.predicted_xy(t, others) - xy, axis=1)
     return bool(np.any((d < radius_m) & (d < own)))
