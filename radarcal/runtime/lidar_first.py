@@ -26,7 +26,7 @@ from radarcal.runtime.clusters import ClusterParams, cluster_points
 from radarcal.runtime.identity import add_votes, assign_labels, match_boxes, project_tracks, visible_parts
 from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Track3D, Tracker3D  # noqa: F401
 
-__all__ = ["LidarFirstConfig", "LidarFirst", "point_times", "fuse_fixes", "box_fix_order", "misread_holder", "on_other_robot", "hand_over_votes", "LEGIBLE_PX"]
+__all__ = ["LidarFirstConfig", "LidarFirst", "point_times", "fuse_fixes", "box_fix_order", "misread_holder", "on_other_robot", "LEGIBLE_PX"]
 
 LIDAR_NOW_S = 0.3  # a track whose last LiDAR cluster is younger than this is seen by the LiDAR now
 LEGIBLE_PX = 64.0  # box height (px) from which a robot's armour number (~1/4 of it) counts as fully legible
@@ -300,7 +300,6 @@ class LidarFirst:
             add_votes(tr.votes, vs[0][0], float(w[0]))
             for (lab, _, _), wi in zip(vs[1:], w[1:]):
                 tr.votes[lab] = tr.votes.get(lab, 0.0) + float(wi)
-        hand_over_votes(tk, {i: max(vs, key=lambda v: v[1])[0] for i, (_, vs) in votes.items()}, t)
         tk.step(t)
         names = assign_labels([tr.votes for tr in tk.tracks], live=[tr.state != LOST for tr in tk.tracks])
         for tr, lab in zip(tk.tracks, names):
@@ -492,33 +491,6 @@ def misread_holder(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray
     if alt:
         return min(alt, key=lambda o: float(np.linalg.norm(o.x[:2] + o.x[2:] * (t - o.t) - xy)))
     return tr
-
-
-HAND_OVER_TICKS = 8  # ticks in a row a LiDAR-seen track is boxed with a label whose holder is not boxed with it
-HAND_OVER_M = 1.0  # ... while the holder is at least this far from it
-
-
-def hand_over_votes(tk: Tracker3D, boxed: dict[int, str], t: float) -> None:
-    """Evidence now beats old votes: a track the LiDAR sees now (``t`` s) whose strongest box this tick is of
-    ``label`` (``boxed``: track id -> label), on ``HAND_OVER_TICKS`` consecutive ticks, while the track holding that
-    label is ``HAND_OVER_M`` or more away and not boxed with it, swaps its vote for the label with the holder's. The
-    holder's votes never fade while nothing boxes it (a robot hidden with its right label keeps it), so without
-    this a second copy of a robot holds the label against the track on it (issue #15, seed 3: red_3 2.5-3.6 m off)."""
-    holder = {tr.label: k for k, tr in enumerate(tk.tracks) if tr.label is not None}
-    xy = tk.predicted_xy(t, tk.tracks)
-    for k, tr in enumerate(tk.tracks):
-        label = boxed.get(tr.id)
-        h = holder.get(label)
-        if label is None or h is None or h == k or t - tr.t_lidar >= LIDAR_NOW_S or boxed.get(tk.tracks[h].id) == label \
-                or float(np.linalg.norm(xy[h] - xy[k])) < HAND_OVER_M:
-            tr.contest = None
-            continue
-        n = tr.contest[1] + 1 if tr.contest is not None and tr.contest[0] == label else 1
-        tr.contest = (label, n)
-        h_votes = tk.tracks[h].votes
-        if n >= HAND_OVER_TICKS and h_votes.get(label, 0.0) > tr.votes.get(label, 0.0):
-            tr.votes[label], h_votes[label] = h_votes[label], tr.votes.get(label, 0.0)
-            tr.contest = None
 
 
 def on_other_robot(tk: Tracker3D, tr: Track3D | None, label: str, xy: np.ndarray, sigma: float, t: float, radius_m: float, behind: bool) -> bool:

@@ -143,7 +143,6 @@ class Track3D:
     t_points: float = -np.inf
     last_box: int | None = None  # index of the box matched in the current frame (identity)
     pending: tuple | None = None  # (xy, t) of a box fix that disagreed with a LiDAR-lost track
-    contest: tuple | None = None  # (label, ticks): boxed with another track's label on consecutive ticks (lidar_first.hand_over_votes)
     origin: np.ndarray | None = None  # where the track started (a track that never moved may be background)
     modes: tuple | None = None  # interacting multiple models (Tracker3D.imm_accel): (X (M,4), P (M,4,4), mu (M,), x, P they combine to)
 
