@@ -16,6 +16,7 @@ from radarcal.extrinsics.radar.detections import (
                                                   FilterResult,
                                                   aggregate_frames,
                                                   filter_detections,
+                                                  frames_per_source,
                                                   quantisation_report,
 )
 from radarcal.extrinsics.radar.geometry2d import (
@@ -70,6 +71,7 @@ __all__ = [
                                                   "filter_detections",
                                                   "fit_ground_plane",
                                                   "fit_rigid_2d",
+                                                  "frames_per_source",
                                                   "leave_one_out",
                                                   "multipath_of",
                                                   "mutual_nn",

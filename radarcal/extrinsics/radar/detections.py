@@ -9,11 +9,11 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["FilterResult", "aggregate_frames", "filter_detections", "quantisation_report"]
+__all__ = ["FilterResult", "aggregate_frames", "filter_detections", "frames_per_source", "quantisation_report"]
 
 
 def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.3, rcs: np.ndarray | None = None,
-                     rcs_split_db: float = 4.0) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     rcs_split_db: float = 4.0, frames: int | None = None) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Average repeated detections of one radar over many frames: single-linkage clusters within ``gate``, cluster
     means; clusters seen in fewer than ``min_fraction`` of the frames a source seen in every frame appears in (the
     most-seen cluster's count, at most the median count of those seen more than once: :func:`_frames_seen`) are
@@ -22,15 +22,14 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
     With ``rcs`` (dBsm per detection) a cluster of three or more whose RCS values form two classes (one may be a
     single frame) more than ``rcs_split_db`` (and 3 within-class sigma) apart is split in two (a ground-bounce multipath ghost sits a few decimetres behind its reflector, ~8 dB weaker, and would
     otherwise be averaged into it); the means are then inverse-variance means (weights ``10^(RCS/10)``) and each
-    cluster's RCS is the power mean (``n`` frames at it carry the cluster's total weight). Returns (means (K,2),
+    cluster's RCS is the power mean (``n`` frames at it carry the cluster's total weight). A cluster of more
+    detections than ``frames`` (a source's detections in the session's placements, :func:`frames_per_source`; this
+    call's own estimate when None) holds several sources and is cut (:func:`_split_crowded`). Returns (means (K,2),
     counts (K,)) or, with ``rcs``, (means, counts, RCS (K,))."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     if len(xy) == 0:
         return (xy, np.zeros(0, int)) if rcs is None else (xy, np.zeros(0, int), np.zeros(0))
-    pairs = cKDTree(xy).query_pairs(gate, output_type="ndarray")
-    from scipy.sparse import coo_matrix
-
-    ncomp, lab = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(xy), len(xy))), directed=False)
+    ncomp, lab = _linkage_clusters(xy, gate)
     if rcs is not None:
         rc = np.asarray(rcs, float).reshape(-1)
         rc = np.where(np.isfinite(rc), rc, 0.0)
@@ -54,6 +53,7 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
                 lab[idx[rc[idx] < v[k[b]]]] = ncomp
                 queue += [c, ncomp]
                 ncomp += 1
+    lab, ncomp = _split_crowded(xy, lab, ncomp, frames)
     counts = np.bincount(lab, minlength=ncomp)
     # with RCS: inverse-variance means (a radar's position variance ~ 1 / SNR ~ 10^(-RCS/10)), so a weak echo merged
     # into a reflector's cluster (a ghost, clutter, a frame of a turned reflector) counts as little as its noise says
@@ -67,6 +67,45 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
         return means[keep], counts[keep]
     rmean = rc.max() + 10 * np.log10(wsum / counts)  # power mean: n frames at this RCS carry the cluster's total weight
     return means[keep], counts[keep], rmean[keep]
+
+
+def _linkage_clusters(xy: np.ndarray, gate: float) -> tuple[int, np.ndarray]:
+    """Single-linkage clusters of (N,2) points within ``gate`` (m): (number, label per point)."""
+    from scipy.sparse import coo_matrix
+
+    pairs = cKDTree(xy).query_pairs(gate, output_type="ndarray")
+    return connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(xy), len(xy))), directed=False)
+
+
+def frames_per_source(xy_sets: Sequence[np.ndarray], gate: float = 0.3) -> int | None:
+    """How many detections a source seen in every frame leaves in one placement, pooled over a session's (placement,
+    radar) detection sets: the median count of the single-linkage clusters seen more than once, rounded up (one
+    placement alone has too few clusters to tell). None when no cluster repeats (single frames)."""
+    counts = [np.bincount(_linkage_clusters(xy, gate)[1]) for xy in (np.asarray(v, float).reshape(-1, 2) for v in xy_sets) if len(xy)]
+    many = np.concatenate(counts) if counts else np.zeros(0, int)
+    many = many[many > 1]
+    return int(np.ceil(np.median(many))) if len(many) else None
+
+
+def _split_crowded(xy: np.ndarray, lab: np.ndarray, ncomp: int, frames: int | None = None) -> tuple[np.ndarray, int]:
+    """A source is seen at most once per frame: a cluster holding more detections than ``frames`` (default: this
+    set's :func:`_frames_seen`, rounded up) merges several (a weak echo chained to the clutter at its tripod's feet)
+    and is cut into ``ceil(n / frames)`` compact parts (average linkage). Returns the new labels and their number."""
+    from scipy.cluster.hierarchy import fcluster, linkage
+
+    counts = np.bincount(lab, minlength=ncomp)
+    frames = int(np.ceil(_frames_seen(counts))) if frames is None else int(frames)
+    if frames < 2:
+        return lab, ncomp
+    lab = lab.copy()
+    for c in np.nonzero(counts > frames)[0]:  # crowded clusters (few)
+        idx = np.nonzero(lab == c)[0]
+        k = int(np.ceil(len(idx) / frames))
+        part = fcluster(linkage(xy[idx], method="average"), k, criterion="maxclust")
+        for j in range(2, part.max() + 1):
+            lab[idx[part == j]] = ncomp
+            ncomp += 1
+    return lab, ncomp
 
 
 def _frames_seen(counts: np.ndarray) -> float:

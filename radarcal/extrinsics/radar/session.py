@@ -15,6 +15,7 @@ import numpy as np
 
 from radarcal import geometry
 from radarcal.errors import InputError
+from radarcal.extrinsics.radar.detections import frames_per_source
 from radarcal.extrinsics.radar.geometry2d import multipath_of
 from radarcal.extrinsics.radar.reflectors import (
     board_reflector_centres,
@@ -189,6 +190,7 @@ def calibrate(inp, options: RadarLidarOptions | None = None, progress=lambda it,
     scenes, notes, frames, extraction = [], [], {}, {}
     lidar_clouds: dict[str, list] = {n: [] for n in rig.lidars}
     main_centres = []
+    frames_each = frames_per_source([sc.detections.of(r) for sc in inp.scenes for r in rig.radars])
     for sc in progress(inp.scenes, "reflectors"):
         clouds = {lid: sc.cloud(lid) for lid in sc.clouds}
         for lid, c in clouds.items():
@@ -219,7 +221,7 @@ def calibrate(inp, options: RadarLidarOptions | None = None, progress=lambda it,
                 try:
                     obs, ext, counts = build_scene_obs(sc.name, main.points.astype(float), xy, range_gate=rig.range_gate, ground_tol=rig.ground_tol,
                                                        cluster_tol=rig.cluster_tol, head_size=rig.head_size, offset=rig.reflector_offset, radar_rcs=rcs,
-                                                       edge=rig.reflector_edge, intensity=main.intensity)
+                                                       edge=rig.reflector_edge, intensity=main.intensity, frames=frames_each)
                 except ValueError as e:
                     raise InputError(sc.clouds[rig.main_lidar], f"reflector extraction failed: {e}") from None
                 if len(ext.centres) == 0:
