@@ -203,17 +203,19 @@ def test_outlier_rule_does_not_test_a_strong_echo_that_carries_a_parameter_of_th
 
 
 def test_a_merged_clutter_cluster_does_not_make_a_single_frame_a_ghost():
-    """Three frames: two reflectors seen in each, three clutter sources within 0.1 m merged into one cluster of 9
-    detections, and one frame of a turned reflector's weak echo. The 30 % rule counts frames, so its reference is
-    the most-seen cluster's count capped at the median count of the clusters seen more than once (3, not 9): the
-    single frame is kept (at 9 it was dropped as a ghost)."""
+    """Three frames: two reflectors seen in each, three clutter sources within 0.1 m that single linkage merges into
+    one cluster of 9 detections, and one frame of a turned reflector's weak echo. The 30 % rule counts frames (the
+    most-seen cluster's count capped at the median count of the clusters seen more than once: 3, not 9), and the 9
+    are cut into their three sources (a source is seen once per frame): the single frame is kept, as itself (at 9 it
+    was dropped as a ghost)."""
     rng = np.random.default_rng(0)
     clutter = np.repeat(np.array([[2.5, -1.0], [2.6, -1.05], [2.55, -0.95]]), 3, axis=0)
     xy = np.concatenate([np.array([2.0, 0.0]) + rng.normal(0, 0.01, (3, 2)), np.array([3.0, 1.0]) + rng.normal(0, 0.01, (3, 2)),
                          clutter + rng.normal(0, 0.005, (9, 2)), [[3.6, -0.2]]])
     m, c = aggregate_frames(xy)
     assert sorted(c.tolist()) == [1, 3, 3, 3, 3, 3]  # the merged 9 are cut into their three sources (one per frame each)
-    assert np.min(np.linalg.norm(m - [3.6, -0.2], axis=1)) < 1e-12
+    assert m[np.argmin(c)] == pytest.approx([3.6, -0.2], abs=1e-12)
+    assert np.sort(np.linalg.norm(m[c == 3][:, None] - np.array([[2.5, -1.0], [2.6, -1.05], [2.55, -0.95]])[None], axis=2).min(axis=0)).max() < 0.02
     m, c = aggregate_frames(  # five frames of two reflectors and a one-frame ghost: still dropped
         np.concatenate([np.repeat([[2.0, 0.0], [3.0, 1.0]], 5, axis=0), [[3.6, -0.2]]]))
     assert c.tolist() == [5, 5]
@@ -262,19 +264,20 @@ def test_a_weak_echo_chained_to_tripod_foot_clutter_is_cut_from_it():
 
 
 def test_frames_per_source_is_pooled_over_the_session():
-    """Three frames per placement; one placement holds only a full three-frame source and a two-frame one (a miss):
-    alone its median says 2.5, so its three-frame source would look crowded. Pooled with the session's other
-    placements the count is 3, and that placement's full source stays one cluster."""
+    """Three frames per placement. One placement holds a full three-frame source and two sources missed once (two
+    detections each): alone its median says 2, which would cut its full source in two. Pooled with the radar's other
+    placements (independent layouts, every source seen three times) the count is 3 and that source stays whole."""
     from radarcal.extrinsics.radar import frames_per_source
 
     rng = np.random.default_rng(1)
-    full = np.repeat([[2.0, 0.0], [3.0, 1.0], [2.5, -1.5]], 3, axis=0) + rng.normal(0, 0.02, (9, 2))
-    sparse = np.concatenate([np.repeat([[2.0, 0.5]], 3, axis=0), np.repeat([[3.0, -1.0]], 2, axis=0)]) + rng.normal(0, 0.02, (5, 2))
-    assert frames_per_source([full, full + 0.1, sparse]) == 3
+    full_a = np.repeat([[2.0, 0.0], [3.0, 1.0], [2.5, -1.5]], 3, axis=0) + rng.normal(0, 0.02, (9, 2))
+    full_b = np.repeat([[1.5, 1.0], [3.5, -0.5], [4.0, 2.0], [2.2, -2.5]], 3, axis=0) + rng.normal(0, 0.02, (12, 2))
+    missed = np.concatenate([np.repeat([[2.0, 0.5]], 3, axis=0), np.repeat([[3.0, -1.0], [1.2, 2.0]], 2, axis=0)]) + rng.normal(0, 0.02, (7, 2))
+    assert frames_per_source([missed]) == 2  # this placement alone
+    assert frames_per_source([full_a, full_b, missed]) == 3
     assert frames_per_source([np.array([[1.0, 0.0], [2.0, 0.0]])]) is None  # single frames: nothing repeats
-    _, c = aggregate_frames(sparse, frames=3)
-    assert sorted(c.tolist()) == [2, 3]
-    _, c = aggregate_frames(sparse)  # this placement's own estimate is rounded up (3): no split either
-    assert sorted(c.tolist()) == [2, 3]
-    _, c = aggregate_frames(sparse, frames=2)  # a wrong frame count would cut the full source
-    assert sorted(c.tolist()) == [1, 2, 2]
+    assert frames_per_source([np.zeros((0, 2)), full_a]) == 3  # a placement where this radar saw nothing
+    _, c = aggregate_frames(missed, frames=3)
+    assert sorted(c.tolist()) == [2, 2, 3]
+    _, c = aggregate_frames(missed, frames=2)  # the placement's own count cuts the full source
+    assert sorted(c.tolist()) == [1, 2, 2, 2]

@@ -23,9 +23,10 @@ def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.
     single frame) more than ``rcs_split_db`` (and 3 within-class sigma) apart is split in two (a ground-bounce multipath ghost sits a few decimetres behind its reflector, ~8 dB weaker, and would
     otherwise be averaged into it); the means are then inverse-variance means (weights ``10^(RCS/10)``) and each
     cluster's RCS is the power mean (``n`` frames at it carry the cluster's total weight). A cluster of more
-    detections than ``frames`` (a source's detections in the session's placements, :func:`frames_per_source`; this
-    call's own estimate when None) holds several sources and is cut (:func:`_split_crowded`). Returns (means (K,2),
-    counts (K,)) or, with ``rcs``, (means, counts, RCS (K,))."""
+    detections than ``frames`` (how many a source seen in every frame leaves in one placement: this radar's
+    :func:`frames_per_source` over the session; this call's own estimate when None) holds several sources and is cut
+    (:func:`_split_crowded`) after the RCS split; the ghost rule then counts on the cut clusters (:func:`_frames_seen`
+    of this call). Returns (means (K,2), counts (K,)) or, with ``rcs``, (means, counts, RCS (K,))."""
     xy = np.asarray(xy, float).reshape(-1, 2)
     if len(xy) == 0:
         return (xy, np.zeros(0, int)) if rcs is None else (xy, np.zeros(0, int), np.zeros(0))
@@ -78,9 +79,10 @@ def _linkage_clusters(xy: np.ndarray, gate: float) -> tuple[int, np.ndarray]:
 
 
 def frames_per_source(xy_sets: Sequence[np.ndarray], gate: float = 0.3) -> int | None:
-    """How many detections a source seen in every frame leaves in one placement, pooled over a session's (placement,
-    radar) detection sets: the median count of the single-linkage clusters seen more than once, rounded up (one
-    placement alone has too few clusters to tell). None when no cluster repeats (single frames)."""
+    """How many detections a source seen in every frame leaves in one placement, pooled over one radar's detection
+    sets of a session's placements (radars may record different numbers of frames): the median count of the
+    single-linkage clusters within ``gate`` (m) seen more than once, rounded up (one placement alone has too few
+    clusters to tell). None when no cluster repeats (single frames)."""
     counts = [np.bincount(_linkage_clusters(xy, gate)[1]) for xy in (np.asarray(v, float).reshape(-1, 2) for v in xy_sets) if len(xy)]
     many = np.concatenate(counts) if counts else np.zeros(0, int)
     many = many[many > 1]
@@ -90,7 +92,8 @@ def frames_per_source(xy_sets: Sequence[np.ndarray], gate: float = 0.3) -> int |
 def _split_crowded(xy: np.ndarray, lab: np.ndarray, ncomp: int, frames: int | None = None) -> tuple[np.ndarray, int]:
     """A source is seen at most once per frame: a cluster holding more detections than ``frames`` (default: this
     set's :func:`_frames_seen`, rounded up) merges several (a weak echo chained to the clutter at its tripod's feet)
-    and is cut into ``ceil(n / frames)`` compact parts (average linkage). Returns the new labels and their number."""
+    and is cut once into ``ceil(n / frames)`` compact parts (average linkage; the parts need not be equal, and
+    identical points -- a gridded object list -- stay together). Returns the new labels and their number."""
     from scipy.cluster.hierarchy import fcluster, linkage
 
     counts = np.bincount(lab, minlength=ncomp)

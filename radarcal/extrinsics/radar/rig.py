@@ -669,11 +669,12 @@ def _solve_dropping_outliers(prob: _JointProblem, all_obs: _FreeObs):
 
 def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_gate: float = 4.0, ground_tol: float = 0.05, cluster_tol: float = 0.12,
                     head_size: float = 0.35, offset: float = 0.0, aggregate: bool = True, aggregate_gate: float = 0.3, radar_rcs: dict | None = None,
-                    edge: float | None = None, intensity: np.ndarray | None = None, frames: int | None = None) -> tuple[SceneObs, ReflectorExtraction, dict]:
+                    edge: float | None = None, intensity: np.ndarray | None = None, frames: dict | None = None) -> tuple[SceneObs, ReflectorExtraction, dict]:
     """One placement's observations from raw arrays: reflector extraction on the main LiDAR cloud (``edge``: the
     trihedral's edge when known, ``intensity`` per point when the cloud has it) and, when a radar reported several
     frames, averaging of its repeated detections (:func:`aggregate_frames`, split by RCS when ``radar_rcs`` gives
-    it; ``frames``: :func:`~radarcal.extrinsics.radar.detections.frames_per_source` of the session). Returns the
+    it; ``frames``: radar name -> its :func:`~radarcal.extrinsics.radar.detections.frames_per_source` over the
+    session). Returns the
     :class:`SceneObs`, the extraction details and per-radar frame counts."""
     ext = extract_reflectors(main_points, range_gate=range_gate, ground_tol=ground_tol, cluster_tol=cluster_tol, head_size=head_size, offset=offset,
                              edge=edge, intensity=intensity)
@@ -685,9 +686,9 @@ def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_ga
             rc = None
         if aggregate and len(xy):
             if rc is not None:
-                means, c, rm = aggregate_frames(xy, gate=aggregate_gate, rcs=rc, frames=frames)
+                means, c, rm = aggregate_frames(xy, gate=aggregate_gate, rcs=rc, frames=(frames or {}).get(r))
             else:
-                (means, c), rm = aggregate_frames(xy, gate=aggregate_gate, frames=frames), None
+                (means, c), rm = aggregate_frames(xy, gate=aggregate_gate, frames=(frames or {}).get(r)), None
             if c.max() > 1:
                 out[r], counts[r], rcs_out[r] = means, c, rm
                 continue

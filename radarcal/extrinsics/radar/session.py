@@ -190,7 +190,7 @@ def calibrate(inp, options: RadarLidarOptions | None = None, progress=lambda it,
     scenes, notes, frames, extraction = [], [], {}, {}
     lidar_clouds: dict[str, list] = {n: [] for n in rig.lidars}
     main_centres = []
-    frames_each = frames_per_source([sc.detections.of(r) for sc in inp.scenes for r in rig.radars])
+    frames_each = {r: frames_per_source([sc.detections.of(r) for sc in inp.scenes]) for r in rig.radars}
     for sc in progress(inp.scenes, "reflectors"):
         clouds = {lid: sc.cloud(lid) for lid in sc.clouds}
         for lid, c in clouds.items():
