@@ -674,8 +674,8 @@ def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_ga
     trihedral's edge when known, ``intensity`` per point when the cloud has it) and, when a radar reported several
     frames, averaging of its repeated detections (:func:`aggregate_frames`, split by RCS when ``radar_rcs`` gives
     it; ``frames``: radar name -> its :func:`~radarcal.extrinsics.radar.detections.frames_per_source` over the
-    session). Returns the
-    :class:`SceneObs`, the extraction details and per-radar frame counts."""
+    session, None: each call's own estimate). Returns the :class:`SceneObs`, the extraction details and per-radar
+    frame counts."""
     ext = extract_reflectors(main_points, range_gate=range_gate, ground_tol=ground_tol, cluster_tol=cluster_tol, head_size=head_size, offset=offset,
                              edge=edge, intensity=intensity)
     out, counts, rcs_out = {}, {}, {}
