@@ -9,10 +9,12 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-__all__ = ["FilterResult", "aggregate_frames", "filter_detections", "frames_per_source", "quantisation_report"]
+__all__ = ["FRAME_GATE", "FilterResult", "aggregate_frames", "filter_detections", "frames_per_source", "quantisation_report"]
+
+FRAME_GATE = 0.3  # m: one source's detections over a placement's frames lie within this of each other (single linkage)
 
 
-def aggregate_frames(xy: np.ndarray, gate: float = 0.3, min_fraction: float = 0.3, rcs: np.ndarray | None = None,
+def aggregate_frames(xy: np.ndarray, gate: float = FRAME_GATE, min_fraction: float = 0.3, rcs: np.ndarray | None = None,
                      rcs_split_db: float = 4.0, frames: int | None = None) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Average repeated detections of one radar over many frames: single-linkage clusters within ``gate``, cluster
     means; clusters seen in fewer than ``min_fraction`` of the frames a source seen in every frame appears in (the
@@ -78,7 +80,7 @@ def _linkage_clusters(xy: np.ndarray, gate: float) -> tuple[int, np.ndarray]:
     return connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(xy), len(xy))), directed=False)
 
 
-def frames_per_source(xy_sets: Sequence[np.ndarray], gate: float = 0.3) -> int | None:
+def frames_per_source(xy_sets: Sequence[np.ndarray], gate: float = FRAME_GATE) -> int | None:
     """How many detections a source seen in every frame leaves in one placement, pooled over one radar's detection
     sets of a session's placements (radars may record different numbers of frames): the median count of the
     single-linkage clusters within ``gate`` (m) seen more than once, rounded up (one placement alone has too few

@@ -35,6 +35,7 @@ from scipy.optimize import least_squares
 
 from radarcal import geometry
 from radarcal.extrinsics.radar.detections import (
+    FRAME_GATE,
     aggregate_frames,
     filter_detections,
     quantisation_report,
@@ -668,7 +669,7 @@ def _solve_dropping_outliers(prob: _JointProblem, all_obs: _FreeObs):
 
 
 def build_scene_obs(name: str, main_points: np.ndarray, radar_xy: dict, range_gate: float = 4.0, ground_tol: float = 0.05, cluster_tol: float = 0.12,
-                    head_size: float = 0.35, offset: float = 0.0, aggregate: bool = True, aggregate_gate: float = 0.3, radar_rcs: dict | None = None,
+                    head_size: float = 0.35, offset: float = 0.0, aggregate: bool = True, aggregate_gate: float = FRAME_GATE, radar_rcs: dict | None = None,
                     edge: float | None = None, intensity: np.ndarray | None = None, frames: dict | None = None) -> tuple[SceneObs, ReflectorExtraction, dict]:
     """One placement's observations from raw arrays: reflector extraction on the main LiDAR cloud (``edge``: the
     trihedral's edge when known, ``intensity`` per point when the cloud has it) and, when a radar reported several
