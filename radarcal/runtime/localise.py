@@ -22,6 +22,9 @@ from radarcal.camera import Camera
 
 __all__ = ["Localiser", "Located", "RayTable", "flat_ground_intersect"]
 
+FOOT_UP_PX = 2.0  # px above a box's bottom edge: the ray just above the foot, which must still meet the surface there
+SURFACE_STEP_M = 0.05  # m: a step of the surface this high at or behind the bottom edge's hit may hide the robot's foot
+
 
 def flat_ground_intersect(origins: np.ndarray, dirs: np.ndarray, z: float = 0.0) -> np.ndarray:
     """Rays (N,3),(N,3) against the plane z = ``z``; NaN rows where the ray does not go down to it."""
@@ -138,15 +141,36 @@ class Localiser:
         xy = self._push_back(p, self.visible_depth_factor * self.radius)
         return np.column_stack([xy, self.surface_z(xy)])
 
-    def from_ground(self, uv_bottom: np.ndarray) -> np.ndarray:
-        """Bottom-centre pixels (K,2) -> robot centres (K,3) on the field surface (NaN where the ray misses)."""
-        uv_bottom = np.asarray(uv_bottom, float).reshape(-1, 2)
-        dirs = self.rays_field(uv_bottom)
+    def _surface_hits(self, uv: np.ndarray) -> np.ndarray:
+        """Pixels (K,2) -> (K,3) first hits of their rays with the field surface (the plane z = 0 without a field
+        model); NaN rows where a ray misses."""
+        dirs = self.rays_field(uv)
         origins = np.broadcast_to(self.cam_origin, dirs.shape)
         if self.field is not None:
-            hit = np.asarray(self.field.intersect_rays(np.ascontiguousarray(origins), dirs), float)
-        else:
-            hit = flat_ground_intersect(origins, dirs)
+            return np.asarray(self.field.intersect_rays(np.ascontiguousarray(origins), dirs), float)
+        return flat_ground_intersect(origins, dirs)
+
+    def from_ground(self, uv_bottom: np.ndarray, check_foot: bool = False) -> np.ndarray:
+        """Bottom-centre pixels (K,2) -> robot centres (K,3) on the field surface (NaN where the ray misses).
+
+        With ``check_foot`` (the pixels are boxes' bottom edges), also NaN where the terrain may hide the robot's foot,
+        so that the bottom edge is the outline of a raised area (or a step) in front of the robot and its ray puts the robot on that area, metres
+        short (a robot behind a highland is hidden up to the area's height x range / (camera height - its height)
+        beyond it): the bottom edge's ray meets a wall face (the surface just beyond the hit is
+        :data:`SURFACE_STEP_M` or more above it: nothing stands on a wall), or the ray just above the bottom edge
+        (:data:`FOOT_UP_PX`) meets the surface :data:`SURFACE_STEP_M` or more below the bottom edge's hit (the area
+        ends right behind the hit). A robot standing on the very edge of an area is dropped too (ambiguous); the
+        ray a robot's height above the foot was tried and lost robots standing on small highlands (`synth match` seed 2)."""
+        uv_bottom = np.asarray(uv_bottom, float).reshape(-1, 2)
+        hit = self._surface_hits(uv_bottom)
+        if check_foot and self.field is not None and len(uv_bottom):
+            above = self._surface_hits(uv_bottom - [0.0, FOOT_UP_PX])
+            view = hit[:, :2] - self.cam_origin[:2]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                beyond = hit[:, :2] + 0.02 * view / np.linalg.norm(view, axis=1, keepdims=True)
+                wall = self.surface_z(np.nan_to_num(beyond)) > hit[:, 2] + SURFACE_STEP_M
+                hidden = wall | (above[:, 2] < hit[:, 2] - SURFACE_STEP_M)
+            hit[hidden] = np.nan
         xy = self._push_back(hit, self.radius)
         return np.column_stack([xy, self.surface_z(xy)]) * np.where(np.isfinite(hit[:, :1]), 1.0, np.nan)
 
@@ -177,7 +201,7 @@ class Localiser:
             sigma[has] = np.sqrt(ds**2 + lateral**2 + (0.25 * self.radius) ** 2)
         if (~has).any():
             uvb = np.column_stack([cx[~has], boxes[~has, 3]])
-            g = self.from_ground(uvb)
+            g = self.from_ground(uvb, check_foot=True)
             p[~has] = g
             ok = np.isfinite(g[:, 0])
             src[np.flatnonzero(~has)[ok]] = "ground"
