@@ -23,6 +23,7 @@ from radarcal.camera import Camera
 __all__ = ["Localiser", "Located", "RayTable", "flat_ground_intersect"]
 
 FOOT_UP_PX = 2.0  # px above a box's bottom edge: the ray just above the foot, which must still meet the surface there
+HIDDEN_FOOT_SIGMA_M = 3.0  # m: sigma of a ground ray whose foot the terrain may hide (it may lie metres short)
 SURFACE_STEP_M = 0.05  # m: a step of the surface this high at or behind the bottom edge's hit may hide the robot's foot
 
 
@@ -150,29 +151,31 @@ class Localiser:
             return np.asarray(self.field.intersect_rays(np.ascontiguousarray(origins), dirs), float)
         return flat_ground_intersect(origins, dirs)
 
-    def from_ground(self, uv_bottom: np.ndarray, check_foot: bool = False) -> np.ndarray:
+    def from_ground(self, uv_bottom: np.ndarray, hit: np.ndarray | None = None) -> np.ndarray:
         """Bottom-centre pixels (K,2) -> robot centres (K,3) on the field surface (NaN where the ray misses).
-
-        With ``check_foot`` (the pixels are boxes' bottom edges), also NaN where the terrain may hide the robot's foot,
-        so that the bottom edge is the outline of a raised area (or a step) in front of the robot and its ray puts the robot on that area, metres
-        short (a robot behind a highland is hidden up to the area's height x range / (camera height - its height)
-        beyond it): the bottom edge's ray meets a wall face (the surface just beyond the hit is
-        :data:`SURFACE_STEP_M` or more above it: nothing stands on a wall), or the ray just above the bottom edge
-        (:data:`FOOT_UP_PX`) meets the surface :data:`SURFACE_STEP_M` or more below the bottom edge's hit (the area
-        ends right behind the hit). A robot standing on the very edge of an area is dropped too (ambiguous); the
-        ray a robot's height above the foot was tried and lost robots standing on small highlands (`synth match` seed 2)."""
-        uv_bottom = np.asarray(uv_bottom, float).reshape(-1, 2)
-        hit = self._surface_hits(uv_bottom)
-        if check_foot and self.field is not None and len(uv_bottom):
-            above = self._surface_hits(uv_bottom - [0.0, FOOT_UP_PX])
-            view = hit[:, :2] - self.cam_origin[:2]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                beyond = hit[:, :2] + 0.02 * view / np.linalg.norm(view, axis=1, keepdims=True)
-                wall = self.surface_z(np.nan_to_num(beyond)) > hit[:, 2] + SURFACE_STEP_M
-                hidden = wall | (above[:, 2] < hit[:, 2] - SURFACE_STEP_M)
-            hit[hidden] = np.nan
+        ``hit``: the rays' surface hits when already cast (:meth:`_surface_hits`)."""
+        hit = self._surface_hits(np.asarray(uv_bottom, float).reshape(-1, 2)) if hit is None else hit
         xy = self._push_back(hit, self.radius)
         return np.column_stack([xy, self.surface_z(xy)]) * np.where(np.isfinite(hit[:, :1]), 1.0, np.nan)
+
+    def hidden_foot(self, uv_bottom: np.ndarray, hit: np.ndarray | None = None) -> np.ndarray:
+        """(K,) bool: boxes' bottom-centre pixels (K,2) where the terrain may hide the robot's foot, so that the bottom
+        edge may be the outline of a raised area (or a step) in front of the robot, whose ground ray then lies short
+        by up to the hidden stretch (a robot behind a highland: its height x range / (camera height - its height)):
+        the ray meets a wall face (the surface just beyond the hit is :data:`SURFACE_STEP_M` or more above it), or
+        the ray :data:`FOOT_UP_PX` above meets the surface :data:`SURFACE_STEP_M` or more lower (the area ends right
+        behind the hit). A robot standing at a step or on the very edge of an area looks alike: ambiguous, not
+        wrong. False without a field model (flat ground hides nothing). ``hit``: as for :meth:`from_ground`."""
+        uv_bottom = np.asarray(uv_bottom, float).reshape(-1, 2)
+        if self.field is None or not len(uv_bottom):
+            return np.zeros(len(uv_bottom), bool)
+        hit = self._surface_hits(uv_bottom) if hit is None else hit
+        above = self._surface_hits(uv_bottom - [0.0, FOOT_UP_PX])
+        view = hit[:, :2] - self.cam_origin[:2]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            beyond = hit[:, :2] + 0.02 * view / np.linalg.norm(view, axis=1, keepdims=True)
+            wall = self.surface_z(np.nan_to_num(beyond)) > hit[:, 2] + SURFACE_STEP_M
+            return wall | (above[:, 2] < hit[:, 2] - SURFACE_STEP_M)
 
     def locate(self, boxes: np.ndarray, depth_z: np.ndarray, depth_sigma: np.ndarray | None = None) -> Located:
         """Boxes (K,4) xyxy + depths (K,) (NaN = no LiDAR depth) -> :class:`Located`."""
@@ -201,14 +204,19 @@ class Localiser:
             sigma[has] = np.sqrt(ds**2 + lateral**2 + (0.25 * self.radius) ** 2)
         if (~has).any():
             uvb = np.column_stack([cx[~has], boxes[~has, 3]])
-            g = self.from_ground(uvb, check_foot=True)
+            hit = self._surface_hits(uvb)
+            g = self.from_ground(uvb, hit)
+            g[self.outside_field(g)] = np.nan  # a robot's centre is inside the field: the ray passed over what hides it
             p[~has] = g
             ok = np.isfinite(g[:, 0])
             src[np.flatnonzero(~has)[ok]] = "ground"
             # ground error for a pixel error dv: dR = (R^2 + h^2) / h * dv / f
             rng_h = np.linalg.norm(g[:, :2] - self.cam_origin[:2], axis=1)
             h = np.maximum(self.cam_origin[2] - g[:, 2], 0.1)
-            sigma[~has] = np.sqrt(((rng_h**2 + h**2) / h * self.pixel_sigma / self.camera.fy) ** 2 + (0.25 * self.radius) ** 2)
+            sig_g = np.sqrt(((rng_h**2 + h**2) / h * self.pixel_sigma / self.camera.fy) ** 2 + (0.25 * self.radius) ** 2)
+            # where the terrain may hide the foot the ray may lie metres short: kept, but weak (dropping it lost robots
+            # climbing steps and standing on small highlands on the 2024 mesh replays)
+            sigma[~has] = np.where(self.hidden_foot(uvb, hit), np.maximum(sig_g, HIDDEN_FOOT_SIGMA_M), sig_g)
         # a box cut by the image's left or right edge holds only part of the robot: its centre column, hence the
         # bearing, may be off by up to the robot's radius (family A's tele: |across| p95 0.25 m vs 0.04 m beyond 15 m)
         w = self.camera.image_size[0]

@@ -130,12 +130,14 @@ def test_a_box_cut_by_the_image_side_edge_gets_the_robot_radius_in_its_sigma(sta
     np.testing.assert_allclose(res.sigma[:2], np.hypot(inside, 0.27), rtol=1e-9)
 
 
-def test_a_box_whose_foot_a_raised_area_hides_gets_no_ground_ray(station):
+def test_a_ground_ray_whose_foot_a_raised_area_may_hide_is_weak_and_one_outside_the_field_is_none(station):
     """`synth match` seed 21: red_3 on the ground 4 m behind a 0.4 m area, its lower body hidden; the bottom edge of
-    its box is the area's outline, whose ray put it on the area 3.9 m short. A bottom edge on the area's front wall or
-    right at its far edge (the surface drops just above it) is not a foot: no ground ray. Robots in front of the
-    area, on it, and on open ground keep theirs, within the ray's own few centimetres."""
+    its box is the area's outline, whose ray put it on the area 3.9 m short with a 0.3 m sigma. A bottom edge on the
+    area's front wall or right at its far edge (the surface drops just above it) may not be a foot: the ray is kept
+    with a sigma of HIDDEN_FOOT_SIGMA_M. Robots in front of the area, on it, and on open ground keep theirs, within the
+    ray's own few centimetres; a ray meeting the surface outside the field is no robot's foot."""
     from radarcal.field import FieldModel
+    from radarcal.runtime.localise import HIDDEN_FOOT_SIGMA_M
 
     cam, T_field_cam = station["camera"], station["T_field_cam"]
     block = {"name": "block", "polygon": [[12.0, 5.0], [16.0, 5.0], [16.0, 10.0], [12.0, 10.0]], "z": 0.4}
@@ -143,16 +145,17 @@ def test_a_box_whose_foot_a_raised_area_hides_gets_no_ground_ray(station):
     loc = Localiser(cam, T_field_cam, field, robot_radius_m=0.25)
     T_cam_field = invert_T(T_field_cam)
 
-    def row(p):  # the image row of a field point (the box's bottom edge there), column of the station's axis
+    def pixel(p):  # where a field point (the box's bottom edge there) is seen
         uv, _ = cam.project(transform_points(T_cam_field, np.array([p], float)))
         return uv[0]
 
     feet = {"wall face": (12.0, 7.5, 0.2), "far edge of the top": (15.99, 7.5, 0.4), "in front": (11.0, 7.5, 0.0), "on the top": (13.5, 7.5, 0.4),
-            "open ground": (8.0, 7.5, 0.0)}  # fmt: skip
-    uv = np.array([row(p) for p in feet.values()])
+            "open ground": (8.0, 7.5, 0.0), "beyond the far line": (28.5, 7.5, 0.0)}  # fmt: skip
+    uv = np.array([pixel(p) for p in feet.values()])
     boxes = np.column_stack([uv[:, 0] - 20, uv[:, 1] - 30, uv[:, 0] + 20, uv[:, 1]])
     res = loc.locate(boxes, np.full(len(boxes), np.nan))
-    assert res.source.tolist() == ["none", "none", "ground", "ground", "ground"]
+    assert res.source.tolist() == ["ground"] * 5 + ["none"]
+    assert np.all(res.sigma[:2] >= HIDDEN_FOOT_SIGMA_M) and np.all(res.sigma[2:5] < 0.3)
     centres = np.array([(11.25, 7.5), (13.75, 7.5), (8.25, 7.5)])  # the foot pushed back by the radius
-    np.testing.assert_allclose(res.p_field[2:, :2], centres, atol=0.05)
-    np.testing.assert_allclose(res.p_field[2:, 2], [0.0, 0.4, 0.0], atol=1e-9)
+    np.testing.assert_allclose(res.p_field[2:5, :2], centres, atol=0.05)
+    np.testing.assert_allclose(res.p_field[2:5, 2], [0.0, 0.4, 0.0], atol=1e-9)
