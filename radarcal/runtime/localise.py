@@ -215,7 +215,7 @@ class Localiser:
             h = np.maximum(self.cam_origin[2] - g[:, 2], 0.1)
             sig_g = np.sqrt(((rng_h**2 + h**2) / h * self.pixel_sigma / self.camera.fy) ** 2 + (0.25 * self.radius) ** 2)
             # where the terrain may hide the foot the ray may lie metres short: kept, but weak (dropping it lost robots
-            # climbing steps and standing on small highlands on the 2024 mesh replays)
+            # climbing steps on the 2024 mesh replays)
             sigma[~has] = np.where(self.hidden_foot(uvb, hit), np.maximum(sig_g, HIDDEN_FOOT_SIGMA_M), sig_g)
         # a box cut by the image's left or right edge holds only part of the robot: its centre column, hence the
         # bearing, may be off by up to the robot's radius (family A's tele: |across| p95 0.25 m vs 0.04 m beyond 15 m)
