@@ -25,6 +25,7 @@ __all__ = ["Localiser", "Located", "RayTable", "flat_ground_intersect"]
 FOOT_UP_PX = 2.0  # px above a box's bottom edge: the ray just above the foot, which must still meet the surface there
 HIDDEN_FOOT_SIGMA_M = 3.0  # m: sigma of a ground ray whose foot the terrain may hide (it may lie metres short)
 SURFACE_STEP_M = 0.05  # m: a step of the surface this high at or behind the bottom edge's hit may hide the robot's foot
+BEYOND_HIT_M = 0.02  # m: how far beyond a ray's hit (along the view) the surface is looked up for a wall face
 
 
 def flat_ground_intersect(origins: np.ndarray, dirs: np.ndarray, z: float = 0.0) -> np.ndarray:
@@ -162,7 +163,7 @@ class Localiser:
         """(K,) bool: boxes' bottom-centre pixels (K,2) where the terrain may hide the robot's foot, so that the bottom
         edge may be the outline of a raised area (or a step) in front of the robot, whose ground ray then lies short
         by up to the hidden stretch (a robot behind a highland: its height x range / (camera height - its height)):
-        the ray meets a wall face (the surface just beyond the hit is :data:`SURFACE_STEP_M` or more above it), or
+        the ray meets a wall face (the surface :data:`BEYOND_HIT_M` beyond the hit is :data:`SURFACE_STEP_M` or more above it), or
         the ray :data:`FOOT_UP_PX` above meets the surface :data:`SURFACE_STEP_M` or more lower (the area ends right
         behind the hit). A robot standing at a step or on the very edge of an area looks alike: ambiguous, not
         wrong. False without a field model (flat ground hides nothing). ``hit``: as for :meth:`from_ground`."""
@@ -173,7 +174,7 @@ class Localiser:
         above = self._surface_hits(uv_bottom - [0.0, FOOT_UP_PX])
         view = hit[:, :2] - self.cam_origin[:2]
         with np.errstate(invalid="ignore", divide="ignore"):
-            beyond = hit[:, :2] + 0.02 * view / np.linalg.norm(view, axis=1, keepdims=True)
+            beyond = hit[:, :2] + BEYOND_HIT_M * view / np.linalg.norm(view, axis=1, keepdims=True)
             wall = self.surface_z(np.nan_to_num(beyond)) > hit[:, 2] + SURFACE_STEP_M
             return wall | (above[:, 2] < hit[:, 2] - SURFACE_STEP_M)
 
