@@ -37,6 +37,9 @@ class RunConfig:
     hero_range_offset_m: float = 0.0
     surface_filter: bool = True  # drop LiDAR returns from the field surface before box depth
     surface_min_height_m: float = 0.08
+    # on raised areas the height tolerance is at least this many times the calibration's range sigma (1.2: ~10 cm at 16 m
+    # with 0.3 deg; measured 1.2 against 2 on `synth match` and the 2024 mesh replays, docs/runtime.md round 7)
+    surface_raised_k_sigma: float = 1.2
     localise: str = "auto"  # auto | lidar | box
     cloud_sweep_s: float = 0.1  # firing duration of one cloud; the cloud's time is its arrival
     cloud_latency_s: float = 0.0  # sweep end -> arrival

@@ -22,6 +22,7 @@ import numpy as np
 
 from radarcal.bundle import Bundle
 from radarcal.runtime import referee as rp
+from radarcal.runtime.background import range_sigma
 from radarcal.runtime.config import LOCALISE_MODES, RunConfig
 from radarcal.runtime.detector import Detection
 from radarcal.runtime.fusion import CloudQueue, SurfaceFilter
@@ -180,12 +181,18 @@ class Pipeline:
         self.field_model = bundle.field()
         self.queue = None
         T_cam_lidar = bundle.T(camera, lidar) if lidar is not None else None  # solved once
+        sig = bundle.transforms.get(f"T_{camera}_{lidar}") if lidar is not None else None
+        sig = sig.sigma if sig is not None else {}
+        # the calibration's sigma, floored (a bundle may claim less than a match-day rig holds)
+        sigma_rot_deg, sigma_trans_m = max(float(sig.get("rot_deg", 0.25)), 0.1), max(float(sig.get("trans_m", 0.03)), 0.01)
         if lidar is not None:
             flt = None
             if cfg.surface_filter:
                 surf = self.field_model.surface_z if self.field_model is not None else None
                 structs = getattr(self.field_model, "structures", None) if self.field_model is not None else None
-                flt = SurfaceFilter(self.T_field_cam @ T_cam_lidar, surf, min_height=cfg.surface_min_height_m, structures=structs)
+                k, s_rot = cfg.surface_raised_k_sigma, np.deg2rad(sigma_rot_deg)
+                flt = SurfaceFilter(self.T_field_cam @ T_cam_lidar, surf, min_height=cfg.surface_min_height_m, structures=structs,
+                                    raised_tol_of_range=(lambda r: k * range_sigma(r, s_rot, sigma_trans_m)) if k > 0 else None)
             self.queue = CloudQueue(self.camera, T_cam_lidar, cfg.cloud_queue_points, cfg.cloud_queue_age_s, point_filter=flt)
         self.localiser = Localiser(self.camera, self.T_field_cam, self.field_model, cfg.robot_radius_m, cfg.visible_depth_factor)
         self.tracks = TrackManager(accel_sigma=cfg.accel_sigma, max_coast_s=cfg.max_coast_s)
@@ -202,11 +209,9 @@ class Pipeline:
         if lidar is not None and cfg.localise != "box":
             from radarcal.runtime.lidar_first import LidarFirst, LidarFirstConfig
 
-            sig = bundle.transforms.get(f"T_{camera}_{lidar}")
-            sig = sig.sigma if sig is not None else {}
             lidar_only = cfg.localise == "lidar"  # no box fixes: only clusters measure the tracks
             lf_cfg = LidarFirstConfig(window_sweeps=cfg.window_sweeps, sweep_s=cfg.cloud_sweep_s, latency_s=cfg.cloud_latency_s, learn_background=cfg.learn_background,
-                                      box_shadow=cfg.box_shadow, lidar_only=lidar_only, sigma_rot_deg=max(float(sig.get("rot_deg", 0.25)), 0.1), sigma_trans_m=max(float(sig.get("trans_m", 0.03)), 0.01))  # fmt: skip
+                                      box_shadow=cfg.box_shadow, lidar_only=lidar_only, sigma_rot_deg=sigma_rot_deg, sigma_trans_m=sigma_trans_m)  # fmt: skip
             from radarcal.runtime.clusters import ClusterParams
 
             # the aerial robot's sparse returns only without box fixes: in auto its box-depth fix is the better one

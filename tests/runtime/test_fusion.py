@@ -110,6 +110,33 @@ def test_surface_filter_terrain_walls_and_structures(station):
     np.testing.assert_allclose(f.heights(transform_points(T_lidar_field, pts[[0, 3]])), [0.01, 0.4], atol=1e-5)
 
 
+def test_surface_filter_tolerance_grows_with_range_on_raised_areas_only(station):
+    """A 0.3 deg rotation error lifts a platform's far edge ~8-9 cm at 15 m: that return must not pass as a robot
+    (it gave the depth of a robot hidden behind the platform, 2.7 m short); on the ground the 8 cm tolerance stays,
+    so a far robot's lowest returns are kept."""
+    from radarcal.runtime.background import range_sigma
+    from radarcal.runtime.fusion import SurfaceFilter
+
+    class Field:  # a 0.6 m platform over x 10..14, y 5..9 on flat ground; the LiDAR stands at x ~ -0.9
+        @staticmethod
+        def surface_z(xy):
+            return np.where((xy[:, 0] > 10) & (xy[:, 0] < 14) & (xy[:, 1] > 5) & (xy[:, 1] < 9), 0.6, 0.0)
+
+    T_field_lidar = station["T_field_cam"] @ station["T_cam_lidar"]
+    T_lidar_field = np.linalg.inv(T_field_lidar)
+    pts = np.array([
+        [13.9, 7.0, 0.688],   # the platform's far edge, lifted 8.8 cm by the calibration error, 14.8 m out: drop
+        [12.0, 7.0, 0.9],     # a robot standing on the platform: keep
+        [25.0, 7.0, 0.12],    # a far robot's lowest return on the ground: keep
+        [5.0, 2.0, 0.05],     # the ground: drop
+    ])  # fmt: skip
+    lidar_pts = transform_points(T_lidar_field, pts)
+    fixed = SurfaceFilter(T_field_lidar, Field.surface_z)
+    assert fixed(lidar_pts).tolist() == [True, True, True, False]  # the fixed 8 cm lets the lifted edge through
+    grown = SurfaceFilter(T_field_lidar, Field.surface_z, raised_tol_of_range=lambda r: 1.2 * range_sigma(r, np.deg2rad(0.3), 0.02))
+    assert grown(lidar_pts).tolist() == [False, True, True, False]
+
+
 def test_box_exclusion_rectangles(station):
     cam, T = station["camera"], station["T_cam_lidar"]
     from radarcal.geometry import invert_T
