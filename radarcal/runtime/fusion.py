@@ -173,11 +173,13 @@ class SurfaceFilter:
     def keep_field(self, p: np.ndarray) -> np.ndarray:
         """The same mask from points already in the field frame (m)."""
         surface = self._surface(p)
-        tol = self.min_height
+        height = p[:, 2] - surface
+        keep = height > self.min_height
         if self.raised_tol_of_range is not None:
-            rng = np.hypot(p[:, 0] - self.sensor_xy[0], p[:, 1] - self.sensor_xy[1])
-            tol = np.where(surface > RAISED_ABOVE_M, np.maximum(tol, self.raised_tol_of_range(rng)), tol)
-        keep = p[:, 2] - surface > tol
+            # only points that pass the fixed tolerance on a raised area can fail the grown one: range for those alone
+            i = np.flatnonzero(keep & (surface > RAISED_ABOVE_M))
+            rng = np.hypot(p[i, 0] - self.sensor_xy[0], p[i, 1] - self.sensor_xy[1])
+            keep[i] = height[i] > self.raised_tol_of_range(rng)
         for c, half, cs, sn in self.structures:
             dx, dy = p[:, 0] - c[0], p[:, 1] - c[1]
             inside = (np.abs(cs * dx + sn * dy) <= half[0]) & (np.abs(-sn * dx + cs * dy) <= half[1]) & (p[:, 2] - c[2] <= 2 * half[2]) & (p[:, 2] >= c[2] - 0.1)
