@@ -100,14 +100,32 @@ class FieldModel:
         return field_from_dict(d, source)
 
     # --- geometry --------------------------------------------------------------------------------------------
-    def area_heights(self, xy: np.ndarray) -> np.ndarray:
+    def area_heights(self, xy: np.ndarray, chunk: int = 1024) -> np.ndarray:
         """(N,2) -> (N, n_areas) top height of each area at xy, NaN where xy is outside that area."""
         xy = np.asarray(xy, float).reshape(-1, 2)
         out = np.full((len(xy), len(self.areas)), np.nan)
-        for j, a in enumerate(self.areas):
-            inside = _points_in_polygon(xy, a["polygon"])
-            out[inside, j] = _area_top(a, xy[inside])
+        if not self.areas:
+            return out
+        e = self._area_edges()
+        for s in range(0, len(xy), chunk):  # (points, areas, edges) arrays: bounded
+            q = xy[s : s + chunk]
+            inside = _in_polygons(q[:, 0, None, None], q[:, 1, None, None], e)
+            out[s : s + chunk] = np.where(inside, e["plane"][:, 0] * q[:, :1] + e["plane"][:, 1] * q[:, 1:] + e["plane"][:, 2], np.nan)
         return out
+
+    def _area_edges(self) -> dict:
+        """Every area's polygon edges as (areas, edges) arrays padded with zero-length edges (which cross no
+        horizontal line), and the top planes (areas, 3): the polygon queries vectorised over areas, built once."""
+        if "area_edges" not in self._cache:
+            k = max(len(a["polygon"]) for a in self.areas)
+            pad = lambda v: np.vstack([v, np.repeat(v[-1:], k - len(v), axis=0)])  # noqa: E731
+            p0 = np.stack([pad(a["polygon"]) for a in self.areas])
+            p1 = np.stack([pad(np.roll(a["polygon"], -1, axis=0)) for a in self.areas])
+            real = np.arange(k)[None, :] < np.array([len(a["polygon"]) for a in self.areas])[:, None]
+            p1 = np.where(real[..., None], p1, p0)
+            self._cache["area_edges"] = {"x0": p0[..., 0], "y0": p0[..., 1], "x1": p1[..., 0], "y1": p1[..., 1],
+                                         "plane": np.array([_plane_coeffs(a) for a in self.areas], float)}  # fmt: skip
+        return self._cache["area_edges"]
 
     def surface_z(self, xy: np.ndarray) -> np.ndarray:
         """(N,2) -> (N,) height of the surface (highest raised area there, else the ground, 0). A mesh-backed field
@@ -137,7 +155,7 @@ class FieldModel:
         d = np.asarray(dirs, float).reshape(-1, 3)
         return o + t[:, None] * d
 
-    def ray_hits(self, origins: np.ndarray, dirs: np.ndarray, t_min: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    def ray_hits(self, origins: np.ndarray, dirs: np.ndarray, t_min: float = 1e-9, chunk: int = 1024) -> tuple[np.ndarray, np.ndarray]:
         """First hit parameter ``t`` (N,) (NaN: none) and the id of what was hit (N,) (-1 ground, k area k's top or
         wall). ``origin + t * dir`` is the hit point; ``dir`` need not be unit length.
 
@@ -151,49 +169,43 @@ class FieldModel:
             return t, np.full(len(t), -1, dtype=np.int64)
         o = np.broadcast_to(np.asarray(origins, float).reshape(-1, 3), np.broadcast_shapes(np.shape(origins), np.shape(dirs))).reshape(-1, 3)
         d = np.broadcast_to(np.asarray(dirs, float).reshape(-1, 3), o.shape).reshape(-1, 3)
-        n = len(o)
-        best = np.full(n, np.inf)
-        hit = np.full(n, -1, dtype=np.int64)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # ground z = 0
-            tg = -o[:, 2] / d[:, 2]
-            ok = (tg > t_min) & np.isfinite(tg)
-            best = np.where(ok, tg, best)
-            for j, a in enumerate(self.areas):
-                poly = a["polygon"]
-                # top: z = a x + b y + c  ->  (dz - a dx - b dy) t = a ox + b oy + c - oz
-                pa, pb, pc = _plane_coeffs(a)
-                den = d[:, 2] - pa * d[:, 0] - pb * d[:, 1]
-                tt = (pa * o[:, 0] + pb * o[:, 1] + pc - o[:, 2]) / den
-                cand = (tt > t_min) & (tt < best) & np.isfinite(tt)
-                if np.any(cand):
-                    idx = np.nonzero(cand)[0]
-                    p = o[idx, :2] + tt[idx, None] * d[idx, :2]
-                    inside = _points_in_polygon(p, poly)
-                    idx = idx[inside]
-                    best[idx] = tt[idx]
-                    hit[idx] = j
-                # walls: vertical faces along each edge, from z = 0 up to the top height on that edge
-                q0 = poly
-                q1 = np.roll(poly, -1, axis=0)
-                e = q1 - q0  # (K,2)
-                # solve o_xy + t d_xy = q0 + s e  (2x2 per ray x edge)
-                det = d[:, None, 0] * (-e[None, :, 1]) - d[:, None, 1] * (-e[None, :, 0])
-                rx = q0[None, :, 0] - o[:, None, 0]
-                ry = q0[None, :, 1] - o[:, None, 1]
-                tw = (rx * (-e[None, :, 1]) - ry * (-e[None, :, 0])) / det
-                sw = (d[:, None, 0] * ry - d[:, None, 1] * rx) / det
-                zw = o[:, None, 2] + tw * d[:, None, 2]
-                xw = o[:, None, 0] + tw * d[:, None, 0]
-                yw = o[:, None, 1] + tw * d[:, None, 1]
-                ztop = pa * xw + pb * yw + pc
-                okw = (tw > t_min) & (sw >= 0) & (sw <= 1) & (zw >= 0) & (zw <= ztop) & np.isfinite(tw)
-                tw = np.where(okw, tw, np.inf).min(axis=1)
-                better = tw < best
-                best = np.where(better, tw, best)
-                hit = np.where(better, j, hit)
-        best = np.where(np.isfinite(best), best, np.nan)
+        best = np.full(len(o), np.nan)
+        hit = np.full(len(o), -1, dtype=np.int64)
+        for s in range(0, len(o), chunk):  # (rays, areas, edges) arrays: bounded
+            best[s : s + chunk], hit[s : s + chunk] = self._polygon_ray_hits(o[s : s + chunk], d[s : s + chunk], t_min)
         return best, hit
+
+    def _polygon_ray_hits(self, o: np.ndarray, d: np.ndarray, t_min: float) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`ray_hits` on the polygon field, vectorised over rays and areas: the ground, then per area its
+        top and its walls; the smallest ``t`` wins, the earlier of two equal ones in that order."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tg = -o[:, 2] / d[:, 2]  # ground z = 0
+            cands = [np.where((tg > t_min) & np.isfinite(tg), tg, np.inf)[:, None]]
+            if self.areas:
+                e = self._area_edges()
+                pa, pb, pc = (e["plane"][:, i] for i in range(3))
+                ox, oy, oz = (o[:, i, None] for i in range(3))
+                dx, dy, dz = (d[:, i, None] for i in range(3))
+                # tops: z = a x + b y + c  ->  (dz - a dx - b dy) t = a ox + b oy + c - oz   (rays, areas)
+                tt = (pa * ox + pb * oy + pc - oz) / (dz - pa * dx - pb * dy)
+                inside = _in_polygons((ox + tt * dx)[..., None], (oy + tt * dy)[..., None], e)
+                top = np.where((tt > t_min) & np.isfinite(tt) & inside, tt, np.inf)
+                # walls: vertical faces along each edge from z = 0 up to the top height there (rays, areas, edges):
+                # o_xy + t d_xy = q0 + s (q1 - q0)
+                ex, ey = e["x1"] - e["x0"], e["y1"] - e["y0"]
+                det = dx[..., None] * -ey + dy[..., None] * ex
+                rx, ry = e["x0"] - ox[..., None], e["y0"] - oy[..., None]
+                tw = (rx * -ey + ry * ex) / det
+                sw = (dx[..., None] * ry - dy[..., None] * rx) / det
+                zw = oz[..., None] + tw * dz[..., None]
+                ztop = pa[:, None] * (ox[..., None] + tw * dx[..., None]) + pb[:, None] * (oy[..., None] + tw * dy[..., None]) + pc[:, None]
+                okw = (tw > t_min) & (sw >= 0) & (sw <= 1) & (zw >= 0) & (zw <= ztop) & np.isfinite(tw)
+                wall = np.where(okw, tw, np.inf).min(axis=2)
+                cands.append(np.stack([top, wall], axis=2).reshape(len(o), -1))  # top 0, wall 0, top 1, wall 1, ...
+            allt = np.concatenate(cands, axis=1)
+        k = np.argmin(allt, axis=1)
+        best = allt[np.arange(len(o)), k]
+        return np.where(np.isfinite(best), best, np.nan), np.where(k == 0, -1, (k - 1) // 2)
 
     def landmark_array(self, names: list[str]) -> np.ndarray:
         """(N,3) field coordinates of the named landmarks (KeyError for unknown names)."""
@@ -376,6 +388,12 @@ class HeightRaster:
         out[ok] = self.z[iy[ok].astype(np.int64), ix[ok].astype(np.int64)]
         return out
 
+    def _z_range(self) -> tuple[float, float]:
+        """(lowest, highest) cell height, computed once (a full pass over the raster costs more than a march)."""
+        if "_zr" not in self.__dict__:
+            self.__dict__["_zr"] = (float(self.z.min()), float(self.z.max())) if self.z.size else (0.0, 0.0)
+        return self.__dict__["_zr"]
+
     def _coarse(self, factor: int) -> np.ndarray:
         """Max height over blocks of ``factor`` cells, dilated by one block (a conservative bound for marching)."""
         key = f"_coarse{factor}"
@@ -399,12 +417,14 @@ class HeightRaster:
         out[ok] = zc[iy[ok], ix[ok]]
         return out
 
-    def march(self, o: np.ndarray, d: np.ndarray, t_min: float = 1e-9, t_max: float = 200.0, factor: int = 8, window: int = 3) -> np.ndarray:
+    def march(self, o: np.ndarray, d: np.ndarray, t_min: float = 1e-9, t_max: float = 200.0, factor: int = 8, chunk: int = 200_000) -> np.ndarray:
         """First ``t`` (N,) where ``o + t d`` goes below the raster's surface (NaN: none).
 
-        Two levels: steps of half a block over the block-max raster (``factor`` cells, dilated: a segment can only
-        dip below the surface where its end lies under that bound), then half-cell steps over ``window`` blocks
-        from each candidate, then 10 bisections. Vectorised over rays; a few iterations per false candidate."""
+        Off the raster the surface is the ground plane, met analytically. Over it two levels, each one vectorised
+        pass over all rays: segments half a block long (``factor`` cells) whose lower end lies under the block-max
+        bound (dilated by a block, so a segment above it is above the surface) are the candidates; their half-cell
+        samples against the raster give the first sample below, placed to 1/64 of a step. ``chunk`` bounds the
+        segments held at once (rays in groups)."""
         o = np.asarray(o, float).reshape(-1, 3)
         d = np.asarray(d, float).reshape(-1, 3)
         n = len(o)
@@ -412,57 +432,75 @@ class HeightRaster:
         if n == 0:
             return out
         dn = np.linalg.norm(d, axis=1)
-        zmax = float(self.z.max()) if self.z.size else 0.0
-        zmin = min(0.0, float(self.z.min()) if self.z.size else 0.0) - 1e-6
+        zmin, zmax = self._z_range()
+        zmin = min(0.0, zmin) - 1e-6
+        ny, nx = self.z.shape
         with np.errstate(divide="ignore", invalid="ignore"):
+            t_far = t_max / np.where(dn > 0, dn, 1.0)
             t_lo = np.where(d[:, 2] < 0, (o[:, 2] - zmax) / -d[:, 2], np.where(o[:, 2] <= zmax, 0.0, np.inf))
-            t_hi = np.where(d[:, 2] < 0, (o[:, 2] - zmin) / -d[:, 2], np.where(o[:, 2] <= zmax, t_max / np.maximum(dn, 1e-12), -np.inf))
-        t_lo = np.maximum(np.nan_to_num(t_lo, nan=np.inf), t_min)
-        t_hi = np.minimum(np.nan_to_num(t_hi, nan=-np.inf), t_max / np.maximum(dn, 1e-12))
-        live = np.nonzero((t_hi >= t_lo) & (dn > 0))[0]
-        fine = 0.5 * self.res / np.where(dn > 0, dn, 1.0)
-        coarse = fine * factor
-        cur = t_lo.copy()  # next parameter to examine, per ray
-        kc = np.arange(1, 65)
-        kf = np.arange(0, factor * window + 1)
-        it = 0
-        while len(live):
-            it += 1
-            # coarse: first block step whose end lies under the bound (64 steps per pass)
-            t = np.minimum(cur[live, None] + kc[None] * coarse[live, None], t_hi[live, None])
-            p = o[live, None] + t[..., None] * d[live, None]
-            cand = p[..., 2] <= self._coarse_lookup(p[..., :2].reshape(-1, 2), factor).reshape(t.shape)
-            any_c = cand.any(axis=1)
-            first = np.argmax(cand, axis=1)
-            done = ~any_c & (t[:, -1] >= t_hi[live])
-            cur[live[~any_c]] = t[~any_c, -1]
-            live_c = live[any_c]
-            start = np.maximum(t[any_c, first[any_c]] - coarse[live_c], cur[live_c])
-            # fine: half-cell steps over `window` blocks from the candidate segment's start
-            tf = np.minimum(start[:, None] + kf[None] * fine[live_c, None], t_hi[live_c, None])
-            pf = o[live_c, None] + tf[..., None] * d[live_c, None]
-            below = (pf[..., 2] <= self.lookup(pf[..., :2].reshape(-1, 2)).reshape(tf.shape)) & (tf > t_lo[live_c, None] + 0.5 * fine[live_c, None])
-            hit = below.any(axis=1)
-            fi = np.argmax(below, axis=1)
-            r = live_c[hit]
-            if len(r):
-                ta = tf[hit, fi[hit] - 1]
-                tb = tf[hit, fi[hit]]
-                for _ in range(10):
-                    tm = 0.5 * (ta + tb)
-                    pm = o[r] + tm[:, None] * d[r]
-                    under = pm[:, 2] <= self.lookup(pm[:, :2])
-                    tb = np.where(under, tm, tb)
-                    ta = np.where(under, ta, tm)
-                out[r] = tb
-            cur[live_c[~hit]] = tf[~hit, -1]
-            finished = np.zeros(n, bool)
-            finished[live[done]] = True
-            finished[r] = True
-            live = live[~finished[live] & (cur[live] < t_hi[live])]
-            if it > 10_000:  # cannot happen (every pass advances each ray by at least one block)
-                break
+            t_hi = np.where(d[:, 2] < 0, (o[:, 2] - zmin) / -d[:, 2], np.where(o[:, 2] <= zmax, t_far, -np.inf))
+            # the part of the ray over the raster's box (slab test); beyond it only the ground plane z = 0
+            t_in, t_out = np.full(n, -np.inf), np.full(n, np.inf)
+            for ax, lo, size in ((0, self.x0, nx * self.res), (1, self.y0, ny * self.res)):
+                ta, tb = (lo - o[:, ax]) / d[:, ax], (lo + size - o[:, ax]) / d[:, ax]
+                par = d[:, ax] == 0
+                inside = (o[:, ax] >= lo) & (o[:, ax] <= lo + size)
+                t_in = np.maximum(t_in, np.where(par, np.where(inside, -np.inf, np.inf), np.minimum(ta, tb)))
+                t_out = np.minimum(t_out, np.where(par, np.where(inside, np.inf, -np.inf), np.maximum(ta, tb)))
+            t_ground = np.where(d[:, 2] < 0, o[:, 2] / -d[:, 2], np.nan)
+            t_ground = np.where((t_ground >= t_min) & (t_ground <= t_far), t_ground, np.nan)
+            before = t_ground < t_in
+        t_lo = np.maximum(np.maximum(np.nan_to_num(t_lo, nan=np.inf), t_min), t_in)
+        t_hi = np.minimum(np.minimum(np.nan_to_num(t_hi, nan=-np.inf), t_far), t_out)
+        live = np.flatnonzero((t_hi >= t_lo) & (dn > 0) & ~before)
+        fine = 0.5 * self.res / np.where(dn > 0, dn, 1.0)  # ray parameter per half cell
+        steps = np.maximum(np.ceil((t_hi[live] - t_lo[live]) / (fine[live] * factor)).astype(np.int64), 1)
+        group_of = (np.cumsum(steps) - steps) // chunk
+        for cut in np.split(np.arange(len(live)), np.flatnonzero(np.diff(group_of)) + 1):
+            if len(cut):
+                g = live[cut]
+                out[g] = self._march_rays(o[g], d[g], t_lo[g], t_hi[g], fine[g], steps[cut], factor)
+        # off the raster the ground plane: met before the ray enters the raster, or after it leaves without a hit
+        after = np.isnan(out) & (t_ground > t_out)
+        out[before | after] = t_ground[before | after]
         return out
+
+    def _march_rays(self, o, d, t_lo, t_hi, fine, steps, factor, first_round: int = 8) -> np.ndarray:
+        """:meth:`march` for a group of rays over ``[t_lo, t_hi]``, ``steps`` segments of ``factor`` samples each; the
+        first ``first_round`` candidate segments of every ray are sampled first, the rest for the rays still without a hit."""
+        res = np.full(len(o), np.nan)
+        ray = np.repeat(np.arange(len(o)), steps)
+        k = np.arange(len(ray)) - np.repeat(np.cumsum(steps) - steps, steps)  # segment k of its ray
+        coarse = fine * factor
+        t_a = t_lo[ray] + k * coarse[ray]
+        t_b = np.minimum(t_a + coarse[ray], t_hi[ray])
+        xy_b = o[ray, :2] + t_b[:, None] * d[ray, :2]
+        z_low = o[ray, 2] + np.minimum(t_a, t_b) * d[ray, 2]
+        z_low = np.minimum(z_low, o[ray, 2] + t_b * d[ray, 2])
+        cand = np.flatnonzero(z_low <= self._coarse_lookup(xy_b, factor))
+        if not len(cand):
+            return res
+        cr = ray[cand]
+        rank = np.arange(len(cand)) - np.searchsorted(cr, cr)  # a candidate's place among its ray's (ray-major)
+        for sel in (rank < first_round, rank >= first_round):  # most rays hit within their first few candidates
+            sel &= np.isnan(res[cr])
+            c, r = cand[sel], cr[sel]
+            if not len(c):
+                continue
+            tf = np.minimum(t_a[c, None] + np.arange(1, factor + 1)[None] * fine[r, None], t_hi[r, None])
+            pf = o[r, None] + tf[..., None] * d[r, None]
+            below = (pf[..., 2] <= self.lookup(pf[..., :2].reshape(-1, 2)).reshape(tf.shape)) & (tf > t_lo[r, None] + 0.5 * fine[r, None])
+            flat = np.flatnonzero(below.ravel())  # in (ray, segment, sample) order: the first per ray is its first hit
+            if not len(flat):
+                continue
+            hit, first = np.unique(r[flat // factor], return_index=True)
+            tb = tf.ravel()[flat[first]]
+            ta = np.maximum(tb - fine[hit], t_lo[hit])
+            ts = ta[:, None] + (np.arange(1, 65) / 64.0)[None] * (tb - ta)[:, None]  # the step that went below, in 64
+            ps = o[hit, None] + ts[..., None] * d[hit, None]
+            under = ps[..., 2] <= self.lookup(ps[..., :2].reshape(-1, 2)).reshape(ts.shape)
+            res[hit] = ts[np.arange(len(ts)), np.argmax(under, axis=1)]
+        return res
 
 
 def _polygon_surface_samples(fm: "FieldModel", spacing: float) -> np.ndarray:
@@ -591,19 +629,13 @@ def _area_top(area: dict, xy: np.ndarray) -> np.ndarray:
     return a * xy[:, 0] + b * xy[:, 1] + c
 
 
-def _points_in_polygon(xy: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Even-odd rule, vectorised over points and edges. (N,2), (K,2) -> (N,) bool."""
-    xy = np.asarray(xy, float).reshape(-1, 2)
-    if len(xy) == 0:
-        return np.zeros(0, bool)
-    x, y = xy[:, 0:1], xy[:, 1:2]
-    x0, y0 = poly[None, :, 0], poly[None, :, 1]
-    p1 = np.roll(poly, -1, axis=0)
-    x1, y1 = p1[None, :, 0], p1[None, :, 1]
-    crosses = (y0 > y) != (y1 > y)
+def _in_polygons(x: np.ndarray, y: np.ndarray, e: dict) -> np.ndarray:
+    """Even-odd rule against every area at once: ``x``, ``y`` (..., 1) broadcast against the (areas, edges) arrays
+    of :meth:`FieldModel._area_edges` -> (..., areas) bool."""
+    crosses = (e["y0"] > y) != (e["y1"] > y)
     with np.errstate(divide="ignore", invalid="ignore"):
-        xint = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
-    return np.count_nonzero(crosses & (x < xint), axis=1) % 2 == 1
+        xint = e["x0"] + (y - e["y0"]) * (e["x1"] - e["x0"]) / (e["y1"] - e["y0"])
+    return np.count_nonzero(crosses & (x < xint), axis=-1) % 2 == 1
 
 
 # --- built-in fields -------------------------------------------------------------------------------------------

@@ -71,6 +71,39 @@ def test_ray_hits_are_first_hits(fm):
         assert np.all(q[:, 2] >= fm.surface_z(q[:, :2]) - 1e-9)
 
 
+def test_raster_march_is_the_first_sample_below_a_dense_walk():
+    """The height-raster march against a 2 mm walk along each ray on a raster of random blocks, steps and a ramp
+    (no mesh needed): rays from above the surface in every direction, up, down, from off the raster and leaving it."""
+    from radarcal.field import HeightRaster
+
+    rng = np.random.default_rng(11)
+    res, nx, ny = 0.02, 500, 300  # 10 x 6 m from (-1, 2)
+    z = np.zeros((ny, nx), np.float32)
+    for _ in range(40):
+        x0, y0 = rng.integers(0, nx - 10), rng.integers(0, ny - 10)
+        z[y0 : y0 + rng.integers(1, 60), x0 : x0 + rng.integers(1, 60)] = rng.uniform(0.02, 1.6)
+    z[:, 400:450] = np.linspace(0.0, 0.5, 50)[None]  # a ramp
+    hr = HeightRaster(-1.0, 2.0, res, z)
+    n = 300
+    xy = rng.uniform([-4, -1], [12, 11], (n, 2))
+    o = np.column_stack([xy, hr.lookup(xy) + rng.uniform(0.05, 3.0, n)])
+    d = rng.normal(size=(n, 3))
+    d[: n // 2, 2] = -np.abs(d[: n // 2, 2])  # half of them downward: most hit
+    t = hr.march(o, d)
+    # reference: the first 2 mm sample below the surface (the raster is 0 off its box: the ground continues)
+    dn = np.linalg.norm(d, axis=1)
+    ts = np.arange(1, 12_000)[None] * (0.002 / dn)[:, None]  # 24 m along each ray
+    q = o[:, None] + ts[..., None] * d[:, None]
+    below = q[..., 2] <= hr.lookup(q[..., :2].reshape(-1, 2)).reshape(ts.shape)
+    ref = np.where(below.any(axis=1), ts[np.arange(n), np.argmax(below, axis=1)], np.nan)
+    with np.errstate(invalid="ignore"):
+        near = ~((ref * dn > 23.9) | (t * dn > 23.9))  # hits beyond the walk's end are not compared
+    assert np.mean(np.isnan(t[near]) == np.isnan(ref[near])) >= 0.99
+    both = near & np.isfinite(t) & np.isfinite(ref)
+    err = np.abs(t[both] - ref[both]) * dn[both]
+    assert both.sum() > 100 and np.mean(err < 0.01) >= 0.98, np.percentile(err, [50, 95, 99])
+
+
 def test_roundtrip_yaml_and_json(fm, tmp_path):
     y = tmp_path / "f.yaml"
     y.write_text(yaml.safe_dump(fm.to_dict()))
