@@ -71,10 +71,13 @@ class RayTable:
             xyd = uv @ self.K_inv[:2, :2].T + self.K_inv[:2, 2]
             dist = self.camera.distort
             eps = 1e-7
+            steps = np.array([[0, 0], [eps, 0], [-eps, 0], [0, eps], [0, -eps]])
             for _ in range(self.refine):
-                f = dist(xy) - xyd
-                jx = (dist(xy + [eps, 0]) - dist(xy - [eps, 0])) / (2 * eps)
-                jy = (dist(xy + [0, eps]) - dist(xy - [0, eps])) / (2 * eps)
+                # the point and its four central-difference neighbours in one call
+                dd = dist((xy[None] + steps[:, None]).reshape(-1, 2)).reshape(5, -1, 2)
+                f = dd[0] - xyd
+                jx = (dd[1] - dd[2]) / (2 * eps)
+                jy = (dd[3] - dd[4]) / (2 * eps)
                 det = jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
                 det = np.where(np.abs(det) < 1e-12, 1e-12, det)
                 xy = xy - np.column_stack([(jy[:, 1] * f[:, 0] - jy[:, 0] * f[:, 1]) / det, (-jx[:, 1] * f[:, 0] + jx[:, 0] * f[:, 1]) / det])
@@ -159,27 +162,37 @@ class Localiser:
         xy = self._push_back(hit, self.radius)
         return np.column_stack([xy, self.surface_z(xy)]) * np.where(np.isfinite(hit[:, :1]), 1.0, np.nan)
 
-    def hidden_foot(self, uv_bottom: np.ndarray, hit: np.ndarray | None = None) -> np.ndarray:
+    def foot_hits(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Boxes (K,4) -> surface hits (K,3) of the rays through each bottom-centre pixel and :data:`FOOT_UP_PX`
+        above it (:meth:`from_ground`, :meth:`hidden_foot`), cast together."""
+        b = np.asarray(boxes, float).reshape(-1, 4)
+        uv = np.column_stack([0.5 * (b[:, 0] + b[:, 2]), b[:, 3]])
+        hits = self._surface_hits(np.vstack([uv, uv - [0.0, FOOT_UP_PX]]))
+        return hits[: len(b)], hits[len(b) :]
+
+    def hidden_foot(self, uv_bottom: np.ndarray, hit: np.ndarray | None = None, above: np.ndarray | None = None) -> np.ndarray:
         """(K,) bool: boxes' bottom-centre pixels (K,2) where the terrain may hide the robot's foot, so that the bottom
         edge may be the outline of a raised area (or a step) in front of the robot, whose ground ray then lies short
         by up to the hidden stretch (a robot behind a highland: its height x range / (camera height - its height)):
         the ray meets a wall face (the surface :data:`BEYOND_HIT_M` beyond the hit is :data:`SURFACE_STEP_M` or more above it), or
         the ray :data:`FOOT_UP_PX` above meets the surface :data:`SURFACE_STEP_M` or more lower (the area ends right
         behind the hit). A robot standing at a step or on the very edge of an area looks alike: ambiguous, not
-        wrong. False without a field model (flat ground hides nothing). ``hit``: as for :meth:`from_ground`."""
+        wrong. False without a field model (flat ground hides nothing). ``hit``, ``above``: the rays' hits when already
+        cast (:meth:`foot_hits`)."""
         uv_bottom = np.asarray(uv_bottom, float).reshape(-1, 2)
         if self.field is None or not len(uv_bottom):
             return np.zeros(len(uv_bottom), bool)
         hit = self._surface_hits(uv_bottom) if hit is None else hit
-        above = self._surface_hits(uv_bottom - [0.0, FOOT_UP_PX])
+        above = self._surface_hits(uv_bottom - [0.0, FOOT_UP_PX]) if above is None else above
         view = hit[:, :2] - self.cam_origin[:2]
         with np.errstate(invalid="ignore", divide="ignore"):
             beyond = hit[:, :2] + BEYOND_HIT_M * view / np.linalg.norm(view, axis=1, keepdims=True)
             wall = self.surface_z(np.nan_to_num(beyond)) > hit[:, 2] + SURFACE_STEP_M
             return wall | (above[:, 2] < hit[:, 2] - SURFACE_STEP_M)
 
-    def locate(self, boxes: np.ndarray, depth_z: np.ndarray, depth_sigma: np.ndarray | None = None) -> Located:
-        """Boxes (K,4) xyxy + depths (K,) (NaN = no LiDAR depth) -> :class:`Located`."""
+    def locate(self, boxes: np.ndarray, depth_z: np.ndarray, depth_sigma: np.ndarray | None = None, foot: tuple[np.ndarray, np.ndarray] | None = None) -> Located:
+        """Boxes (K,4) xyxy + depths (K,) (NaN = no LiDAR depth) -> :class:`Located`. ``foot``: :meth:`foot_hits`
+        of the boxes when already cast."""
         boxes = np.asarray(boxes, float).reshape(-1, 4)
         depth_z = np.asarray(depth_z, float).reshape(-1)
         k = len(boxes)
@@ -205,7 +218,7 @@ class Localiser:
             sigma[has] = np.sqrt(ds**2 + lateral**2 + (0.25 * self.radius) ** 2)
         if (~has).any():
             uvb = np.column_stack([cx[~has], boxes[~has, 3]])
-            hit = self._surface_hits(uvb)
+            hit, above = (self._surface_hits(uvb), None) if foot is None else (foot[0][~has], foot[1][~has])
             g = self.from_ground(uvb, hit)
             g[self.outside_field(g)] = np.nan  # a robot's centre is inside the field: the ray passed over what hides it
             p[~has] = g
@@ -217,7 +230,7 @@ class Localiser:
             sig_g = np.sqrt(((rng_h**2 + h**2) / h * self.pixel_sigma / self.camera.fy) ** 2 + (0.25 * self.radius) ** 2)
             # where the terrain may hide the foot the ray may lie metres short: kept, but weak (dropping it lost robots
             # climbing steps on the 2024 mesh replays)
-            sigma[~has] = np.where(self.hidden_foot(uvb, hit), np.maximum(sig_g, HIDDEN_FOOT_SIGMA_M), sig_g)
+            sigma[~has] = np.where(self.hidden_foot(uvb, hit, above), np.maximum(sig_g, HIDDEN_FOOT_SIGMA_M), sig_g)
         # a box cut by the image's left or right edge holds only part of the robot: its centre column, hence the
         # bearing, may be off by up to the robot's radius (family A's tele: |across| p95 0.25 m vs 0.04 m beyond 15 m)
         w = self.camera.image_size[0]

@@ -155,14 +155,15 @@ def no_ground_ray(boxes: np.ndarray, frame_boxes: np.ndarray, min_aspect: float)
     return flat | foot.any(axis=1)
 
 
-def foot_beyond(localiser: Localiser, boxes: np.ndarray, frame_boxes: np.ndarray, p_field: np.ndarray, min_aspect: float) -> np.ndarray:
+def foot_beyond(localiser: Localiser, boxes: np.ndarray, frame_boxes: np.ndarray, p_field: np.ndarray, min_aspect: float, hit: np.ndarray | None = None) -> np.ndarray:
     """(K,) how far (m, horizontally along the view) beyond its located centre ``p_field`` (K,3) the bottom edge of
     each box puts its robot: the range of the bottom centre's ground ray (``Localiser.from_ground``, on the field's
     surface, so a robot on a highland far behind is not taken for one in front) minus the located range; inf where the
     edge is not the robot's foot (:func:`no_ground_ray`: a robot in front hides it, or a hidden robot's top) or the
-    ray meets no surface. A box-depth fix taken from a robot standing in front lies well short of it."""
+    ray meets no surface. A box-depth fix taken from a robot standing in front lies well short of it. ``hit``: the
+    bottom centres' surface hits when already cast (:meth:`Localiser.foot_hits`)."""
     b = np.asarray(boxes, float).reshape(-1, 4)
-    g = localiser.from_ground(np.column_stack([0.5 * (b[:, 0] + b[:, 2]), b[:, 3]]))
+    g = localiser.from_ground(np.column_stack([0.5 * (b[:, 0] + b[:, 2]), b[:, 3]]), hit)
     o = localiser.cam_origin[:2]
     beyond = np.linalg.norm(g[:, :2] - o, axis=1) - np.linalg.norm(np.asarray(p_field, float).reshape(-1, 3)[:, :2] - o, axis=1)
     return np.where(np.isfinite(beyond) & ~no_ground_ray(b, frame_boxes, min_aspect), beyond, np.inf)
@@ -325,22 +326,10 @@ class Pipeline:
     def _process_lidar_first(self, t: float, frame: str, detections: list[Detection], timings: dict[str, float] | None, team: str | None) -> FrameResult:
         timings = dict(timings or {})
         tic = time.perf_counter()
-        dets = [d for d in detections if self._valid(d, self.cfg.min_score)]
-        boxes = np.array([d.xyxy for d in dets], float).reshape(-1, 4)
-        labels = [d.label for d in dets]
-        scores = np.array([d.score for d in dets], float)
+        boxes, labels, scores = self._view_boxes(detections)
         fixes: dict[int, tuple] = {}
-
-        def locate_boxes(idx: list[int]):
-            b = boxes[idx]
-            depth, dsig = self._box_depths(b, t, frame_boxes=boxes)
-            loc = self.localiser.locate(b, depth, dsig)
-            loc.source[no_ground_ray(b, boxes, self.cfg.ground_min_aspect) & (loc.source == "ground")] = "none"
-            for n, j in enumerate(idx):
-                fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
-            return loc.p_field, loc.sigma, loc.source, foot_beyond(self.localiser, b, boxes, loc.p_field, self.cfg.ground_min_aspect)
-
-        live = self.lidar_first.frame(t, boxes, labels, scores, locate_boxes if self.cfg.localise == "auto" else None)
+        locate_boxes = self._locator(next(iter(self.views.values())), t, boxes, fixes) if self.cfg.localise == "auto" else None
+        live = self.lidar_first.frame(t, boxes, labels, scores, locate_boxes)
         toc = time.perf_counter()
         timings["depth"] = 0.0
         timings["localise"] = (toc - tic) * 1e3
@@ -400,11 +389,12 @@ class Pipeline:
         def locate_boxes(idx: list[int]):
             b = boxes[idx]
             depth, dsig = self._box_depths(b, t, view.queue, boxes)
-            loc = view.localiser.locate(b, depth, dsig)
+            foot = view.localiser.foot_hits(b)  # bottom-edge rays cast once for the ground ray and foot_beyond
+            loc = view.localiser.locate(b, depth, dsig, foot)
             loc.source[no_ground_ray(b, boxes, self.cfg.ground_min_aspect) & (loc.source == "ground")] = "none"
             for n, j in enumerate(idx):
                 fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
-            return loc.p_field, loc.sigma, loc.source, foot_beyond(view.localiser, b, boxes, loc.p_field, self.cfg.ground_min_aspect)
+            return loc.p_field, loc.sigma, loc.source, foot_beyond(view.localiser, b, boxes, loc.p_field, self.cfg.ground_min_aspect, foot[0])
 
         return locate_boxes
 
