@@ -217,10 +217,16 @@ def robust_depth(values: np.ndarray, min_points: int = 3, min_fraction: float = 
     need = max(min_points, int(np.ceil(min_fraction * n)))
     ok = np.flatnonzero(counts >= need)
     c = int(ok[0]) if len(ok) else int(np.argmax(counts))
-    sel = v[cid == c]
-    med = float(np.median(sel))
-    mad = float(np.median(np.abs(sel - med)))
+    sel = v[cid == c]  # sorted
+    med = float(_sorted_median(sel))
+    mad = float(_sorted_median(np.sort(np.abs(sel - med))))
     return med, max(1.4826 * mad / np.sqrt(len(sel)), 0.02), len(sel)
+
+
+def _sorted_median(v: np.ndarray):
+    """``np.median`` of a sorted non-empty 1-D array, without its per-call overhead (the same value and dtype)."""
+    k = len(v)
+    return v[k // 2] if k % 2 else (v[k // 2 - 1] + v[k // 2]) / v.dtype.type(2)
 
 
 class CloudQueue:
