@@ -191,10 +191,8 @@ def _cv_predict(x: np.ndarray, P: np.ndarray, dt: float, q: float, vmax: float) 
     F = np.eye(4)
     F[0, 2] = F[1, 3] = dt
     dt2, dt3 = dt * dt, dt * dt * dt
-    Q1 = np.array([[dt3 / 3, dt2 / 2], [dt2 / 2, dt]]) * q
-    Q = np.zeros((4, 4))
-    Q[np.ix_([0, 2], [0, 2])] = Q1
-    Q[np.ix_([1, 3], [1, 3])] = Q1
+    a, b, c = dt3 / 3 * q, dt2 / 2 * q, dt * q  # white-acceleration noise, per axis [[a, b], [b, c]] on (pos, vel)
+    Q = np.array([[a, 0, b, 0], [0, a, 0, b], [b, 0, c, 0], [0, b, 0, c]])
     x = F @ x
     sp = np.hypot(x[2], x[3])
     if sp > vmax:
