@@ -34,7 +34,7 @@ def record_fixes(rep: Path, cameras: str = "cam0,cam1") -> list[dict]:
 
     rec: list[dict] = []
     depths: list = []
-    orig_locator, orig_depth, orig_view_boxes = pl.Pipeline._locator, fusion.CloudQueue.depth_in_box, pl.Pipeline._view_boxes
+    orig_locator, orig_depth, orig_view_boxes = pl.Pipeline._locator, fusion.CloudQueue.depths_in_boxes, pl.Pipeline._view_boxes
     labels_of: dict[int, list] = {}
 
     def view_boxes(self, dets):
@@ -42,10 +42,10 @@ def record_fixes(rep: Path, cameras: str = "cam0,cam1") -> list[dict]:
         labels_of[id(b)] = lab
         return b, lab, sc
 
-    def depth_in_box(self, *a, **k):
-        bd = orig_depth(self, *a, **k)
-        depths.append(bd)
-        return bd
+    def depths_in_boxes(self, *a, **k):
+        bds = orig_depth(self, *a, **k)
+        depths.append(bds)
+        return bds
 
     def locator(self, view, t, boxes, fixes):
         f = orig_locator(self, view, t, boxes, fixes)
@@ -53,24 +53,24 @@ def record_fixes(rep: Path, cameras: str = "cam0,cam1") -> list[dict]:
 
         def locate_boxes(idx):
             depths.clear()
-            p, sig, src = f(idx)
-            bds = depths[-len(idx):] if len(depths) >= len(idx) else [None] * len(idx)  # the last len(idx) calls: the boxes' own depths
+            p, sig, src, beyond = f(idx)
+            bds = depths[-1] if depths and len(depths[-1]) == len(idx) else [None] * len(idx)  # the last call: the boxes' own depths
             b = boxes[list(idx)]
             ground = view.localiser.from_ground(np.column_stack([(b[:, 0] + b[:, 2]) / 2, b[:, 3]]))
             ground[pl.no_ground_ray(b, boxes, self.cfg.ground_min_aspect)] = np.nan
             for n, j in enumerate(idx):
                 rec.append({"camera": view.name, "t": float(t), "box": boxes[j].copy(), "label": labels[j] if labels else None, "p": p[n].copy(),
                             "sigma": float(sig[n]), "source": str(src[n]), "depth": bds[n], "ground": ground[n]})  # fmt: skip
-            return p, sig, src
+            return p, sig, src, beyond
 
         return locate_boxes
 
-    pl.Pipeline._locator, fusion.CloudQueue.depth_in_box, pl.Pipeline._view_boxes = locator, depth_in_box, view_boxes
+    pl.Pipeline._locator, fusion.CloudQueue.depths_in_boxes, pl.Pipeline._view_boxes = locator, depths_in_boxes, view_boxes
     try:
         with tempfile.TemporaryDirectory() as tmp:
             _cli(["run", "--replay", str(rep), "--camera", cameras, "--out", str(Path(tmp) / "out.jsonl"), "--json", "-q"])
     finally:
-        pl.Pipeline._locator, fusion.CloudQueue.depth_in_box, pl.Pipeline._view_boxes = orig_locator, orig_depth, orig_view_boxes
+        pl.Pipeline._locator, fusion.CloudQueue.depths_in_boxes, pl.Pipeline._view_boxes = orig_locator, orig_depth, orig_view_boxes
     return rec
 
 

@@ -41,29 +41,34 @@ class DepthImage:
         img[self.pix] = self.depth
         return img.reshape(self.height, self.width)
 
-    def values_in_box(self, x1: float, y1: float, x2: float, y2: float, exclude: np.ndarray | None = None) -> np.ndarray:
-        """Depths of the occupied pixels whose centres lie in the box [x1, x2] x [y1, y2] and outside every
-        rectangle of ``exclude`` (K,4 xyxy)."""
-        u0, v0 = max(int(np.ceil(x1)), 0), max(int(np.ceil(y1)), 0)
-        u1, v1 = min(int(np.floor(x2)), self.width - 1), min(int(np.floor(y2)), self.height - 1)
-        if u1 < u0 or v1 < v0 or not len(self.pix):
-            return np.zeros(0, np.float32)
-        rows = np.arange(v0, v1 + 1, dtype=np.int64) * self.width
-        lo = np.searchsorted(self.pix, rows + u0, "left")
-        hi = np.searchsorted(self.pix, rows + u1, "right")
-        counts = hi - lo
-        total = int(counts.sum())
-        if total == 0:
-            return np.zeros(0, np.float32)
-        starts = np.repeat(lo - np.concatenate(([0], np.cumsum(counts)[:-1])), counts)
-        idx = starts + np.arange(total)
-        if exclude is not None and len(exclude):
+    def values_in_boxes(self, boxes: np.ndarray, exclude: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Depths of the occupied pixels whose centres lie in each box (B,4) [x1, x2] x [y1, y2] and outside every
+        rectangle of that box's ``exclude`` (B,K,4; padded with empty rectangles), and the box of each (V,): all
+        boxes in one pass over their rows."""
+        b = np.asarray(boxes, float).reshape(-1, 4)
+        if not len(b) or not len(self.pix):
+            return np.zeros(0, np.float32), np.zeros(0, np.int64)
+        u0, v0 = np.maximum(np.ceil(b[:, 0]), 0).astype(np.int64), np.maximum(np.ceil(b[:, 1]), 0).astype(np.int64)
+        u1, v1 = np.minimum(np.floor(b[:, 2]), self.width - 1).astype(np.int64), np.minimum(np.floor(b[:, 3]), self.height - 1).astype(np.int64)
+        nrows = np.where((u1 >= u0) & (v1 >= v0), v1 - v0 + 1, 0)
+        row_box = np.repeat(np.arange(len(b)), nrows)
+        rows = (v0[row_box] + np.arange(len(row_box)) - np.repeat(np.cumsum(nrows) - nrows, nrows)) * self.width
+        lo = np.searchsorted(self.pix, rows + u0[row_box], "left")
+        counts = np.searchsorted(self.pix, rows + u1[row_box], "right") - lo
+        idx = np.repeat(lo - (np.cumsum(counts) - counts), counts) + np.arange(int(counts.sum()))
+        box = np.repeat(row_box, counts)
+        if exclude is not None and len(idx):
             pix = self.pix[idx]
-            u, v = pix % self.width, pix // self.width
-            ex = np.asarray(exclude, float).reshape(-1, 4)
-            hit = (u[:, None] >= ex[:, 0]) & (u[:, None] <= ex[:, 2]) & (v[:, None] >= ex[:, 1]) & (v[:, None] <= ex[:, 3])
-            idx = idx[~hit.any(axis=1)]
-        return self.depth[idx]
+            u, v = (pix % self.width)[:, None], (pix // self.width)[:, None]
+            ex = np.asarray(exclude, float)[box]  # (V, K, 4)
+            keep = ~((u >= ex[..., 0]) & (u <= ex[..., 2]) & (v >= ex[..., 1]) & (v <= ex[..., 3])).any(axis=1)
+            idx, box = idx[keep], box[keep]
+        return self.depth[idx], box
+
+    def values_in_box(self, x1: float, y1: float, x2: float, y2: float, exclude: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`values_in_boxes` of one box, ``exclude`` (K,4)."""
+        ex = None if exclude is None or not len(exclude) else np.asarray(exclude, float).reshape(1, -1, 4)
+        return self.values_in_boxes(np.array([[x1, y1, x2, y2]], float), ex)[0]
 
 
 def make_depth_image(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.ndarray, t: float = 0.0, min_depth: float = 0.3) -> DepthImage:
@@ -290,32 +295,49 @@ class CloudQueue:
         (default: the queue's age limit; a moving robot's old points are in the wrong place, so the loop uses a
         shorter limit than the queue). ``shrink`` trims that fraction of the box width/height on each side.
         ``exclude``: rectangles (K,4) whose pixels are ignored — the boxes of robots standing in front of this one."""
-        if not self.images:
-            return None
-        x1, y1, x2, y2 = (float(v) for v in xyxy)
-        dx, dy = (x2 - x1) * shrink, (y2 - y1) * shrink
-        x1, x2, y1, y2 = x1 + dx, x2 - dx, y1 + dy, y2 - dy
+        return self.depths_in_boxes(np.asarray(xyxy, float).reshape(1, 4), t, shrink, max_age_s, [exclude])[0]
+
+    def depths_in_boxes(self, boxes: np.ndarray, t: float | None = None, shrink: float = 0.1, max_age_s: float | None = None,
+                        excludes: list | None = None) -> list[BoxDepth | None]:  # fmt: skip
+        """:meth:`depth_in_box` of every box (B,4) at once, ``excludes``: one ``exclude`` (K,4 or None) per box."""
+        b = np.asarray(boxes, float).reshape(-1, 4)
+        out: list[BoxDepth | None] = [None] * len(b)
+        if not self.images or not len(b):
+            return out
+        dx, dy = (b[:, 2] - b[:, 0]) * shrink, (b[:, 3] - b[:, 1]) * shrink
+        shrunk = np.column_stack([b[:, 0] + dx, b[:, 1] + dy, b[:, 2] - dx, b[:, 3] - dy])
+        ex = None
+        if excludes is not None and any(e is not None and len(e) for e in excludes):
+            k = max(len(e) for e in excludes if e is not None)
+            ex = np.tile(np.array([np.inf, np.inf, -np.inf, -np.inf]), (len(b), k, 1))  # empty rectangles
+            for i, e in enumerate(excludes):
+                if e is not None and len(e):
+                    ex[i, : len(e)] = np.asarray(e, float).reshape(-1, 4)
         t_now = self.images[-1].t if t is None else float(t)
-        pooled = []
-        n = 0
-        used = 0
-        oldest_t = t_now  # time of the oldest image that gave points (not of an expired one the loop stopped at)
         limit = self.max_age_s if max_age_s is None else min(float(max_age_s), self.max_age_s)
+        n = np.zeros(len(b), np.int64)
+        used = np.zeros(len(b), np.int64)
+        oldest_t = np.full(len(b), t_now)  # time of the oldest image that gave points (not of an expired one the loop stopped at)
+        vals, owner = [], []
+        active = np.arange(len(b))
         for img in reversed(self.images):
-            if t_now - img.t > limit:
+            if t_now - img.t > limit or not len(active):
                 break
-            vals = img.values_in_box(x1, y1, x2, y2, exclude)
-            used += 1
-            if len(vals):
-                pooled.append(vals)
-                n += len(vals)
-                oldest_t = img.t
-                if n >= self.min_box_points:
-                    break
-        if not n:
-            return None
-        r = robust_depth(np.concatenate(pooled))
-        if r is None:
-            return None
-        depth, sigma, k = r
-        return BoxDepth(depth, sigma, k, n, t_now - oldest_t, used)
+            v, j = img.values_in_boxes(shrunk[active], None if ex is None else ex[active])
+            used[active] += 1
+            got = np.bincount(j, minlength=len(active))
+            n[active] += got
+            oldest_t[active[got > 0]] = img.t
+            vals.append(v)
+            owner.append(active[j])
+            active = active[n[active] < self.min_box_points]
+        if not vals:
+            return out
+        v, j = np.concatenate(vals), np.concatenate(owner)
+        order = np.argsort(j, kind="stable")
+        per_box = np.split(v[order], np.cumsum(np.bincount(j, minlength=len(b)))[:-1])
+        for i in np.flatnonzero(n):
+            r = robust_depth(per_box[i])
+            if r is not None:
+                out[i] = BoxDepth(r[0], r[1], r[2], int(n[i]), t_now - float(oldest_t[i]), int(used[i]))
+        return out

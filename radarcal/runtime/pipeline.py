@@ -271,9 +271,8 @@ class Pipeline:
         queue.expire(t)
         fb = boxes if frame_boxes is None else np.asarray(frame_boxes, float).reshape(-1, 4)
         fronts = self._depth_order(boxes, fb, t, queue)
-        for i in range(len(boxes)):
-            front = fronts[i]
-            bd = queue.depth_in_box(boxes[i], t, max_age_s=self.cfg.depth_max_age_s, exclude=fb[front] if front.any() else None)
+        bds = queue.depths_in_boxes(boxes, t, max_age_s=self.cfg.depth_max_age_s, excludes=[fb[front] if front.any() else None for front in fronts])
+        for i, bd in enumerate(bds):
             if bd is not None:
                 depth[i], dsig[i] = bd.depth, bd.sigma
         return depth, dsig
@@ -291,17 +290,22 @@ class Pipeline:
         if not overlap.any():
             return front
 
-        def own_depth(box, others):
-            bd = queue.depth_in_box(box, t, max_age_s=self.cfg.depth_max_age_s, exclude=others if len(others) else None)
-            return bd.depth if bd is not None and bd.n >= 3 else np.nan  # one or two returns: maybe the background
+        def own_depths(bx, others):  # each box's depth from its own pixels (one or two returns: maybe the background)
+            bds = queue.depths_in_boxes(bx, t, max_age_s=self.cfg.depth_max_age_s, excludes=[o if len(o) else None for o in others])
+            return np.array([bd.depth if bd is not None and bd.n >= 3 else np.nan for bd in bds])
 
         # own depths once per frame box (the boxes located are frame boxes too: looked up, not computed twice)
         ff_overlap = _overlapping_others(f, f)
         same = np.all(b[:, None] == f[None], axis=2)
         need = np.flatnonzero(overlap.any(axis=0) | (same & overlap.any(axis=1)[:, None]).any(axis=0))
         own_f = np.full(len(f), np.nan)
-        own_f[need] = [own_depth(f[m], f[ff_overlap[m]]) for m in need]
-        own_b = np.array([np.nan if not overlap[k].any() else own_f[np.argmax(same[k])] if same[k].any() else own_depth(b[k], f[overlap[k]]) for k in range(len(b))])
+        own_f[need] = own_depths(f[need], [f[ff_overlap[m]] for m in need])
+        own_b = np.full(len(b), np.nan)
+        has_same = same.any(axis=1)
+        own_b[has_same] = own_f[np.argmax(same[has_same], axis=1)]
+        alone = np.flatnonzero(~has_same & overlap.any(axis=1))
+        own_b[alone] = own_depths(b[alone], [f[overlap[k]] for k in alone])
+        own_b[~overlap.any(axis=1)] = np.nan
         gap = np.maximum(0.35, 0.03 * own_b[:, None])
         known = np.isfinite(own_b)[:, None] & np.isfinite(own_f)[None, :]
         return overlap & np.where(known, own_f[None, :] < own_b[:, None] - gap, front) | (front & known & (np.abs(own_f[None, :] - own_b[:, None]) <= gap))
