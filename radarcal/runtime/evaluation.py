@@ -100,11 +100,15 @@ class Scorer:
 
 
 def _p95_with_missing(e: np.ndarray, visible: int) -> float | None:
-    """p95 of the error with every missing robot-frame counted as infinitely wrong."""
+    """p95 of the error with every missing robot-frame counted as infinitely wrong: inf when the 95th percentile
+    falls among the missing ones (``np.percentile`` interpolates inf - inf there and returns NaN with a warning)."""
     if not visible:
         return None
-    full = np.concatenate([e, np.full(visible - len(e), np.inf)])
-    return float(np.percentile(full, 95))
+    full = np.sort(np.concatenate([e, np.full(visible - len(e), np.inf)]))
+    k = 0.95 * (len(full) - 1)
+    lo = int(np.floor(k))
+    a, b, frac = float(full[lo]), float(full[min(lo + 1, len(full) - 1)]), k - lo
+    return a if frac == 0 else np.inf if np.isinf(b) else a + (b - a) * frac
 
 
 def _robot_dict(r) -> dict:
