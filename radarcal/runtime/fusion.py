@@ -21,7 +21,7 @@ import numpy as np
 from radarcal.camera import Camera
 from radarcal.geometry import transform_points
 
-__all__ = ["DepthImage", "BoxDepth", "make_depth_image", "depth_image_from_camera_points", "robust_depth", "CloudQueue", "SurfaceFilter"]
+__all__ = ["DepthImage", "BoxDepth", "make_depth_image", "depth_image_from_camera_points", "robust_depth", "robust_depths", "CloudQueue", "SurfaceFilter"]
 
 RAISED_ABOVE_M = 0.01  # m: a surface (max-filtered over the wall margin) this far above the ground is a raised area
 
@@ -209,29 +209,67 @@ def robust_depth(values: np.ndarray, min_points: int = 3, min_fraction: float = 
     front of a far background: the few points that hit it are the nearest); otherwise the points are split into
     depth clusters at gaps larger than ``max(gap_m, gap_rel * depth)`` and the nearest cluster holding at least
     ``max(min_points, min_fraction * n)`` points wins (single stray near returns are skipped); its median is the
-    depth and ``1.4826 MAD / sqrt(k)`` (floored at 2 cm) its sigma."""
-    v = np.sort(np.asarray(values, np.float32)[np.isfinite(values)])
-    n = len(v)
-    if n == 0:
-        return None
-    if n < min_points:
-        return float(v[0]), max(float(v[-1] - v[0]), 0.05), n
+    depth and ``1.4826 MAD / sqrt(k)`` (floored at 2 cm) its sigma. The one-box case of :func:`robust_depths`."""
+    v = np.asarray(values, np.float32).reshape(-1)
+    d, sig, k = robust_depths(v, np.zeros(len(v), np.int64), 1, min_points, min_fraction, gap_m, gap_rel)
+    return None if not k[0] else (float(d[0]), float(sig[0]), int(k[0]))
+
+
+def robust_depths(values: np.ndarray, box: np.ndarray, n_boxes: int, min_points: int = 3, min_fraction: float = 0.15,
+                  gap_m: float = 0.35, gap_rel: float = 0.03) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`robust_depth` of many boxes at once: ``values`` (V,) float32 with their ``box`` (V,) in ``0..n_boxes-1``
+    -> depth, sigma (float64, NaN where a box has no finite value) and the points used (int, 0 there)."""
+    v, box = np.asarray(values, np.float32), np.asarray(box, np.int64)
+    fin = np.isfinite(v)
+    v, box = v[fin], box[fin]
+    order = np.lexsort((v, box))  # by box, then depth
+    v, box = v[order], box[order]
+    n = np.bincount(box, minlength=n_boxes)
+    start = np.cumsum(n) - n
+    depth, sigma, used = np.full(n_boxes, np.nan), np.full(n_boxes, np.nan), np.zeros(n_boxes, np.int64)
+    few = np.flatnonzero((n > 0) & (n < min_points))  # the nearest value
+    if len(few):
+        first, last = v[start[few]], v[start[few] + n[few] - 1]
+        depth[few], sigma[few], used[few] = first, np.maximum((last - first).astype(np.float64), 0.05), n[few]
+    many = n >= min_points
+    if not many.any():
+        return depth, sigma, used
+    keep = many[box]
+    v, box = v[keep], box[keep]
+    # depth clusters: a new one where the box changes or the gap to the previous depth is too large
     gaps = np.diff(v) > np.maximum(gap_m, gap_rel * v[1:])
-    cid = np.concatenate(([0], np.cumsum(gaps)))
+    cid = np.concatenate(([0], np.cumsum(gaps | (box[1:] != box[:-1]))))
     counts = np.bincount(cid)
-    need = max(min_points, int(np.ceil(min_fraction * n)))
+    c_start = np.cumsum(counts) - counts
+    c_box = box[c_start]
+    need = np.maximum(min_points, np.ceil(min_fraction * n[c_box]).astype(np.int64))
+    # per box its nearest cluster with enough points, else its largest (the first of equal ones)
+    boxes = np.flatnonzero(many)
     ok = np.flatnonzero(counts >= need)
-    c = int(ok[0]) if len(ok) else int(np.argmax(counts))
-    sel = v[cid == c]  # sorted
-    med = float(_sorted_median(sel))
-    mad = float(_sorted_median(np.sort(np.abs(sel - med))))
-    return med, max(1.4826 * mad / np.sqrt(len(sel)), 0.02), len(sel)
+    none = np.iinfo(np.int64).max
+    first_ok = np.full(n_boxes, none)
+    np.minimum.at(first_ok, c_box[ok], ok)
+    rank = np.lexsort((np.arange(len(counts)), -counts, c_box))  # by box, most points first, then the nearer
+    lead = rank[np.r_[True, c_box[rank][1:] != c_box[rank][:-1]]]
+    big = np.full(n_boxes, -1, np.int64)
+    big[c_box[lead]] = lead
+    chosen = np.where(first_ok[boxes] != none, first_ok[boxes], big[boxes])
+    k, s0 = counts[chosen], c_start[chosen]
+    med = _sorted_medians(v, s0, k)
+    member = np.repeat(np.arange(len(chosen)), k)
+    pos = np.repeat(s0, k) + np.arange(int(k.sum())) - np.repeat(np.cumsum(k) - k, k)
+    dev = np.abs(v[pos] - med[member])
+    dev = dev[np.lexsort((dev, member))]
+    mad = _sorted_medians(dev, np.cumsum(k) - k, k)
+    depth[boxes], used[boxes] = med, k
+    sigma[boxes] = np.maximum(1.4826 * mad.astype(np.float64) / np.sqrt(k), 0.02)
+    return depth, sigma, used
 
 
-def _sorted_median(v: np.ndarray):
-    """``np.median`` of a sorted non-empty 1-D array, without its per-call overhead (the same value and dtype)."""
-    k = len(v)
-    return v[k // 2] if k % 2 else (v[k // 2 - 1] + v[k // 2]) / v.dtype.type(2)
+def _sorted_medians(v: np.ndarray, start: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """``np.median`` of the sorted runs ``v[start : start + k]`` (k > 0), in ``v``'s dtype."""
+    mid = start + k // 2
+    return np.where(k % 2 == 1, v[mid], (v[mid - 1 + (k % 2)] + v[mid]) / v.dtype.type(2))
 
 
 class CloudQueue:
@@ -333,11 +371,7 @@ class CloudQueue:
             active = active[n[active] < self.min_box_points]
         if not vals:
             return out
-        v, j = np.concatenate(vals), np.concatenate(owner)
-        order = np.argsort(j, kind="stable")
-        per_box = np.split(v[order], np.cumsum(np.bincount(j, minlength=len(b)))[:-1])
-        for i in np.flatnonzero(n):
-            r = robust_depth(per_box[i])
-            if r is not None:
-                out[i] = BoxDepth(r[0], r[1], r[2], int(n[i]), t_now - float(oldest_t[i]), int(used[i]))
+        depth, sigma, k = robust_depths(np.concatenate(vals), np.concatenate(owner), len(b))
+        for i in np.flatnonzero(k):
+            out[i] = BoxDepth(float(depth[i]), float(sigma[i]), int(k[i]), int(n[i]), t_now - float(oldest_t[i]), int(used[i]))
         return out
