@@ -298,13 +298,14 @@ class Pipeline:
         ff_overlap = _overlapping_others(f, f)
         same = np.all(b[:, None] == f[None], axis=2)
         need = np.flatnonzero(overlap.any(axis=0) | (same & overlap.any(axis=1)[:, None]).any(axis=0))
-        own_f = np.full(len(f), np.nan)
-        own_f[need] = own_depths(f[need], [f[ff_overlap[m]] for m in need])
-        own_b = np.full(len(b), np.nan)
         has_same = same.any(axis=1)
+        alone = np.flatnonzero(~has_same & overlap.any(axis=1))  # located boxes that are not frame boxes
+        both = own_depths(np.vstack([f[need], b[alone]]), [f[ff_overlap[m]] for m in need] + [f[overlap[k]] for k in alone])
+        own_f = np.full(len(f), np.nan)
+        own_f[need] = both[: len(need)]
+        own_b = np.full(len(b), np.nan)
         own_b[has_same] = own_f[np.argmax(same[has_same], axis=1)]
-        alone = np.flatnonzero(~has_same & overlap.any(axis=1))
-        own_b[alone] = own_depths(b[alone], [f[overlap[k]] for k in alone])
+        own_b[alone] = both[len(need) :]
         own_b[~overlap.any(axis=1)] = np.nan
         gap = np.maximum(0.35, 0.03 * own_b[:, None])
         known = np.isfinite(own_b)[:, None] & np.isfinite(own_f)[None, :]
