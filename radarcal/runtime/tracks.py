@@ -13,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment  # at import, not in the first frame's tracking (0.3 s)
 
 __all__ = ["Track", "TrackManager", "Track3D", "Tracker3D", "TENTATIVE", "CONFIRMED", "LOST"]
 
@@ -313,8 +314,6 @@ class Tracker3D:
         """Hungarian assignment of measurements (K,3 centres, K sigma, K times, K aerial flags) to ``live`` tracks on
         the distance to their prediction at the mean time, within each track's gate (at most ``max_gate_m``) and of
         the same kind (aerial or ground); ``penalty`` (T,) is added to a track's costs. Returns (track, index) pairs."""
-        from scipy.optimize import linear_sum_assignment
-
         if not len(centre) or not live:
             return []
         d = np.linalg.norm(self.predicted_xy(float(np.mean(t)), live)[:, None, :] - centre[None, :, :2], axis=2)  # (T,K)
