@@ -7,7 +7,7 @@ import pytest
 from runtime_scene import robot_cloud
 
 from radarcal.geometry import invert_T, transform_points
-from radarcal.runtime.fusion import CloudQueue, make_depth_image, robust_depth
+from radarcal.runtime.fusion import CloudQueue, make_depth_image, robust_depth, robust_depths
 
 
 def test_depth_image_is_nearest_per_pixel(station):
@@ -47,6 +47,57 @@ def test_robust_depth_picks_the_robot_not_background_or_strays():
     assert robust_depth(np.array([12.0, 30.0]))[0] == 12.0  # few points: the nearest
     assert robust_depth(np.array([])) is None
     assert robust_depth(np.array([np.nan])) is None
+
+
+def _robust_depth_one_box(values, min_points=3, min_fraction=0.15, gap_m=0.35, gap_rel=0.03):
+    """Reference: the statistic of :func:`robust_depth`, one box, written plainly."""
+    v = np.sort(np.asarray(values, np.float32)[np.isfinite(values)])
+    if len(v) == 0:
+        return None
+    if len(v) < min_points:
+        return float(v[0]), max(float(v[-1] - v[0]), 0.05), len(v)
+    cid = np.concatenate(([0], np.cumsum(np.diff(v) > np.maximum(gap_m, gap_rel * v[1:]))))
+    counts = np.bincount(cid)
+    ok = np.flatnonzero(counts >= max(min_points, int(np.ceil(min_fraction * len(v)))))
+    sel = v[cid == (ok[0] if len(ok) else np.argmax(counts))]
+    med = float(np.median(sel))
+    return med, max(1.4826 * float(np.median(np.abs(sel - med))) / np.sqrt(len(sel)), 0.02), len(sel)
+
+
+def test_robust_depths_of_many_boxes_equal_the_plain_one_box_statistic():
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        B = int(rng.integers(1, 12))
+        vals = [np.concatenate([rng.normal(rng.uniform(3, 25), 0.1, rng.integers(0, 30)), rng.uniform(2, 30, rng.integers(0, 5)),
+                                np.round(rng.uniform(5, 20, rng.integers(0, 6)), 1)]).astype(np.float32) for _ in range(B)]  # fmt: skip
+        owner = np.concatenate([np.full(len(v), i) for i, v in enumerate(vals)])
+        mix = rng.permutation(len(owner))
+        d, sigma, k = robust_depths(np.concatenate(vals)[mix], owner[mix], B)
+        for i, v in enumerate(vals):
+            ref = _robust_depth_one_box(v)
+            assert (k[i] == 0) if ref is None else (float(d[i]), float(sigma[i]), int(k[i])) == ref
+
+
+def test_depths_of_all_boxes_at_once_equal_one_box_at_a_time(station):
+    """Boxes side by side and overlapping, with and without rectangles in front, sparse clouds (pooled over images)."""
+    cam, T_cam_lidar, T_field_cam = station["camera"], station["T_cam_lidar"], station["T_field_cam"]
+    T_lidar_field = invert_T(T_field_cam @ T_cam_lidar)
+    rng = np.random.default_rng(5)
+    q = CloudQueue(cam, T_cam_lidar, max_points=100_000, max_age_s=1.0)
+    at = rng.uniform([6, 3], [22, 12], (6, 2))
+    for k in range(4):
+        q.push(0.1 * k, transform_points(T_lidar_field, np.vstack([robot_cloud((float(x), float(y)), n=40) for x, y in at])))
+    uv, _ = cam.project(transform_points(invert_T(T_field_cam), np.column_stack([at, np.full(6, 0.25)])))
+    centre = np.vstack([uv[rng.integers(0, 6, 34)] + rng.normal(0, 15, (34, 2)), rng.uniform([0, 0], [1280, 1024], (6, 2))])
+    half = rng.uniform(5, 60, (40, 2))
+    boxes = np.column_stack([centre - half, centre + half])
+    excludes = [None if j % 3 else boxes[rng.choice(40, int(rng.integers(1, 4)))] for j in range(40)]
+    batch = q.depths_in_boxes(boxes, t=0.35, max_age_s=0.3, excludes=excludes)
+    single = [q.depth_in_box(b, t=0.35, max_age_s=0.3, exclude=e) for b, e in zip(boxes, excludes)]
+    assert sum(bd is not None for bd in single) >= 10 and any(bd is not None and bd.images_used > 1 for bd in single)  # pooled
+    plain = q.depths_in_boxes(boxes, t=0.35, max_age_s=0.3)
+    assert any(a != b for a, b, e in zip(batch, plain, excludes) if e is not None)  # the rectangles in front matter
+    assert batch == single
 
 
 def test_queue_budget_age_and_fallback(station):
