@@ -10,6 +10,7 @@ a depth fix (only ground-ray fixes) restarts it at once. Tracks unseen for ``max
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -203,13 +204,15 @@ def _cv_predict(x: np.ndarray, P: np.ndarray, dt: float, q: float, vmax: float) 
 
 def _kf_update(x: np.ndarray, P: np.ndarray, xy: np.ndarray, sigma: float) -> tuple[np.ndarray, np.ndarray, float]:
     """Kalman update of a constant-velocity state by a field (x, y) fix of isotropic ``sigma`` (m); returns the state,
-    its covariance and the fix's log-likelihood under the prediction."""
-    S = P[:2, :2] + np.eye(2) * sigma**2
-    Si = np.linalg.inv(S)
+    its covariance and the fix's log-likelihood under the prediction. The 2x2 innovation covariance is inverted in
+    closed form."""
+    s00, s01, s10, s11 = P[0, 0] + sigma * sigma, P[0, 1], P[1, 0], P[1, 1] + sigma * sigma
+    det = s00 * s11 - s01 * s10
+    Si = np.array([[s11, -s01], [-s10, s00]]) / det
     y = xy - x[:2]
     K = P[:, :2] @ Si
-    P = (np.eye(4) - K @ np.eye(2, 4)) @ P
-    return x + K @ y, 0.5 * (P + P.T), float(-0.5 * y @ Si @ y - 0.5 * np.log(np.linalg.det(S)) - np.log(2 * np.pi))
+    P = P - K @ P[:2]
+    return x + K @ y, 0.5 * (P + P.T), float(-0.5 * y @ Si @ y - 0.5 * math.log(det) - math.log(2 * math.pi))
 
 
 def _combine(X: np.ndarray, Ps: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
