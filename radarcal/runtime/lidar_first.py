@@ -15,6 +15,7 @@ consistent frames; tracks are predicted to the frame time and returned.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -189,19 +190,21 @@ class LidarFirst:
     def track_hulls(self, t: float) -> tuple[list[Track3D], np.ndarray, np.ndarray]:
         """Tracks with a recent cluster and their field boxes (lo, hi) moved to time ``t``, at least robot-sized
         across and reaching down to the track's surface height."""
-        trs, lo, hi = [], [], []
-        for tr in self.tracker.tracks:
-            if tr.hull is None or t - tr.t_lidar > 0.6:
-                continue
-            shift = np.r_[tr.x[2:] * (t - tr.t_points), 0.0]
-            a, b = tr.hull[0] + shift, tr.hull[1] + shift
-            c = 0.5 * (a[:2] + b[:2])
-            half = np.maximum(0.5 * (b[:2] - a[:2]), 0.22)
-            za = a[2] if tr.aerial else min(a[2], tr.z)
-            trs.append(tr)
-            lo.append(np.r_[c - half, za])
-            hi.append(np.r_[c + half, max(b[2], za + 0.3)])
-        return trs, np.array(lo).reshape(-1, 3), np.array(hi).reshape(-1, 3)
+        trs = [tr for tr in self.tracker.tracks if tr.hull is not None and t - tr.t_lidar <= 0.6]
+        if not trs:
+            return trs, np.zeros((0, 3)), np.zeros((0, 3))
+        dt = np.array([t - tr.t_points for tr in trs])
+        shift = np.array([tr.x[2:] for tr in trs]) * dt[:, None]
+        a = np.array([tr.hull[0] for tr in trs], float)
+        b = np.array([tr.hull[1] for tr in trs], float)
+        a[:, :2] += shift
+        b[:, :2] += shift
+        c = 0.5 * (a[:, :2] + b[:, :2])
+        half = np.maximum(0.5 * (b[:, :2] - a[:, :2]), 0.22)
+        za = np.where([tr.aerial for tr in trs], a[:, 2], np.minimum(a[:, 2], [tr.z for tr in trs]))
+        lo = np.column_stack([c - half, za])
+        hi = np.column_stack([c + half, np.maximum(b[:, 2], za + 0.3)])
+        return trs, lo, hi
 
     def frame(self, t: float, boxes: np.ndarray, labels: list[str], scores: np.ndarray, locate_boxes=None) -> list[Track3D]:
         """One camera frame at ``t``: identities from ``boxes`` (B,4) with ``labels``/``scores``; boxes matched to no
@@ -387,12 +390,13 @@ class LidarFirst:
             return tracks
         rank = {"lidar": 2, "depth": 1, "ground": 1, "predicted": 0}
         order = sorted(tracks, key=lambda tr: (-rank[self.seen_source(tr, t)], tr.label is None, -tr.t_seen, tr.sigma, tr.id))
-        kept: list[Track3D] = []
+        kept: list[tuple[bool, float, float]] = []  # (aerial, x, y) of the entries kept
         for tr in order:
-            if any(o.aerial == tr.aerial and float(np.linalg.norm(o.x[:2] - tr.x[:2])) < r for o in kept):
+            x, y = float(tr.x[0]), float(tr.x[1])
+            if any(air == tr.aerial and math.hypot(kx - x, ky - y) < r for air, kx, ky in kept):
                 tr.outranked_t = t
             else:
-                kept.append(tr)
+                kept.append((tr.aerial, x, y))
         return tracks
 
     def seen_source(self, tr: Track3D, t: float) -> str:
