@@ -12,12 +12,16 @@ vote reaches ``min_vote`` and beats the runner-up by ``ratio``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment  # at import, not in the first frame's tracking (0.3 s)
 
 from radarcal.camera import Camera
 
 __all__ = ["project_tracks", "visible_parts", "match_boxes", "add_votes", "assign_labels"]
+
+_CORNERS = np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T.astype(bool)  # (8,3) of a box: hi where True
 
 
 def project_tracks(camera: Camera, T_cam_field: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -26,14 +30,13 @@ def project_tracks(camera: Camera, T_cam_field: np.ndarray, lo: np.ndarray, hi: 
     T = len(lo)
     if T == 0:
         return np.zeros((0, 4)), np.zeros(0)
-    sel = np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T  # (8,3)
-    C = np.where(sel[None].astype(bool), hi[:, None], lo[:, None])  # (T,8,3)
+    C = np.where(_CORNERS[None], hi[:, None], lo[:, None])  # (T,8,3)
     uv, valid, z = camera.project_from(T_cam_field, C.reshape(-1, 3))
     uv = uv.reshape(T, 8, 2)
     ok = valid.reshape(T, 8).all(1) & (z.reshape(T, 8) > 0.3).all(1)
     box = np.column_stack([uv[..., 0].min(1), uv[..., 1].min(1), uv[..., 0].max(1), uv[..., 1].max(1)])
     w, h = camera.image_size
-    box = np.column_stack([np.clip(box[:, 0], -0.5, w - 0.5), np.clip(box[:, 1], -0.5, h - 0.5), np.clip(box[:, 2], -0.5, w - 0.5), np.clip(box[:, 3], -0.5, h - 0.5)])
+    box = np.clip(box, -0.5, [w - 0.5, h - 0.5, w - 0.5, h - 0.5])
     ok &= (box[:, 2] - box[:, 0] >= 1) & (box[:, 3] - box[:, 1] >= 1)
     box[~ok] = np.nan
     centre = 0.5 * (lo + hi)
@@ -57,18 +60,22 @@ def visible_parts(full: np.ndarray, depth: np.ndarray, cell: float = 3.0) -> tup
         cell = float(np.sqrt((x1 - x0) * (y1 - y0) / 4_000_000)) + 1
         nx, ny = int(np.ceil((x1 - x0) / cell)) + 1, int(np.ceil((y1 - y0) / cell)) + 1
     taken = np.zeros((ny, nx), bool)
-    for k in ok[np.argsort(depth[ok])]:
-        a0, b0 = int((full[k, 0] - x0) / cell), int((full[k, 1] - y0) / cell)
-        a1, b1 = int(np.ceil((full[k, 2] - x0) / cell)), int(np.ceil((full[k, 3] - y0) / cell))
+    x0, y0, cell = float(x0), float(y0), float(cell)  # the per-track arithmetic on Python floats (few tracks, many steps)
+    boxes = full.tolist()
+    for k in ok[np.argsort(depth[ok])].tolist():
+        fx0, fy0, fx1, fy1 = boxes[k]
+        a0, b0 = int((fx0 - x0) / cell), int((fy0 - y0) / cell)
+        a1, b1 = math.ceil((fx1 - x0) / cell), math.ceil((fy1 - y0) / cell)
         sub = ~taken[b0:b1, a0:a1]
         if sub.size == 0:
             continue
-        frac[k] = sub.mean()
-        if sub.any():
+        n_free = int(np.count_nonzero(sub))
+        frac[k] = n_free / sub.size
+        if n_free:
             rows = np.flatnonzero(sub.any(1))
             cols = np.flatnonzero(sub.any(0))
-            vis[k] = [x0 + (a0 + cols[0]) * cell, y0 + (b0 + rows[0]) * cell, min(x0 + (a0 + cols[-1] + 1) * cell, full[k, 2]), min(y0 + (b0 + rows[-1] + 1) * cell, full[k, 3])]
-            vis[k, 0], vis[k, 1] = max(vis[k, 0], full[k, 0]), max(vis[k, 1], full[k, 1])
+            r0, r1, c0, c1 = int(rows[0]), int(rows[-1]), int(cols[0]), int(cols[-1])
+            vis[k] = (max(x0 + (a0 + c0) * cell, fx0), max(y0 + (b0 + r0) * cell, fy0), min(x0 + (a0 + c1 + 1) * cell, fx1), min(y0 + (b0 + r1 + 1) * cell, fy1))
         taken[b0:b1, a0:a1] = True
     return vis, frac
 
