@@ -124,6 +124,7 @@ class FieldModel:
             real = np.arange(k)[None, :] < np.array([len(a["polygon"]) for a in self.areas])[:, None]
             p1 = np.where(real[..., None], p1, p0)
             self._cache["area_edges"] = {"x0": p0[..., 0], "y0": p0[..., 1], "x1": p1[..., 0], "y1": p1[..., 1],
+                                         "dx": p1[..., 0] - p0[..., 0], "dy": p1[..., 1] - p0[..., 1],
                                          "plane": np.array([_plane_coeffs(a) for a in self.areas], float)}  # fmt: skip
         return self._cache["area_edges"]
 
@@ -135,8 +136,7 @@ class FieldModel:
         h = self.area_heights(xy)
         if h.shape[1] == 0:
             return np.zeros(len(h))
-        with np.errstate(all="ignore"):
-            top = np.nanmax(np.where(np.isnan(h), -np.inf, h), axis=1)
+        top = np.where(np.isnan(h), -np.inf, h).max(axis=1)
         return np.maximum(top, 0.0)
 
     def area_at(self, xy: np.ndarray) -> np.ndarray:
@@ -192,7 +192,7 @@ class FieldModel:
                 top = np.where((tt > t_min) & np.isfinite(tt) & inside, tt, np.inf)
                 # walls: vertical faces along each edge from z = 0 up to the top height there (rays, areas, edges):
                 # o_xy + t d_xy = q0 + s (q1 - q0)
-                ex, ey = e["x1"] - e["x0"], e["y1"] - e["y0"]
+                ex, ey = e["dx"], e["dy"]
                 det = dx[..., None] * -ey + dy[..., None] * ex
                 rx, ry = e["x0"] - ox[..., None], e["y0"] - oy[..., None]
                 tw = (rx * -ey + ry * ex) / det
@@ -634,7 +634,7 @@ def _in_polygons(x: np.ndarray, y: np.ndarray, e: dict) -> np.ndarray:
     of :meth:`FieldModel._area_edges` -> (..., areas) bool."""
     crosses = (e["y0"] > y) != (e["y1"] > y)
     with np.errstate(divide="ignore", invalid="ignore"):
-        xint = e["x0"] + (y - e["y0"]) * (e["x1"] - e["x0"]) / (e["y1"] - e["y0"])
+        xint = e["x0"] + (y - e["y0"]) * e["dx"] / e["dy"]
     return np.count_nonzero(crosses & (x < xint), axis=-1) % 2 == 1
 
 
