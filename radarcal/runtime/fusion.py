@@ -45,30 +45,45 @@ class DepthImage:
         """Depths of the occupied pixels whose centres lie in each box (B,4) [x1, x2] x [y1, y2] and outside every
         rectangle of that box's ``exclude`` (B,K,4; padded with empty rectangles), and the box of each (V,): all
         boxes in one pass over their rows."""
-        b = np.asarray(boxes, float).reshape(-1, 4)
-        if not len(b) or not len(self.pix):
-            return np.zeros(0, np.float32), np.zeros(0, np.int64)
-        u0, v0 = np.maximum(np.ceil(b[:, 0]), 0).astype(np.int64), np.maximum(np.ceil(b[:, 1]), 0).astype(np.int64)
-        u1, v1 = np.minimum(np.floor(b[:, 2]), self.width - 1).astype(np.int64), np.minimum(np.floor(b[:, 3]), self.height - 1).astype(np.int64)
-        nrows = np.where((u1 >= u0) & (v1 >= v0), v1 - v0 + 1, 0)
-        row_box = np.repeat(np.arange(len(b)), nrows)
-        rows = (v0[row_box] + np.arange(len(row_box)) - np.repeat(np.cumsum(nrows) - nrows, nrows)) * self.width
-        lo = np.searchsorted(self.pix, rows + u0[row_box], "left")
-        counts = np.searchsorted(self.pix, rows + u1[row_box], "right") - lo
-        idx = np.repeat(lo - (np.cumsum(counts) - counts), counts) + np.arange(int(counts.sum()))
-        box = np.repeat(row_box, counts)
-        if exclude is not None and len(idx):
-            pix = self.pix[idx]
-            u, v = (pix % self.width)[:, None], (pix // self.width)[:, None]
-            ex = np.asarray(exclude, float)[box]  # (V, K, 4)
-            keep = ~((u >= ex[..., 0]) & (u <= ex[..., 2]) & (v >= ex[..., 1]) & (v <= ex[..., 3])).any(axis=1)
-            idx, box = idx[keep], box[keep]
-        return self.depth[idx], box
+        v, box, _ = _values_in_boxes(self.pix, self.depth, self.width, self.height, boxes, exclude)
+        return v, box
 
     def values_in_box(self, x1: float, y1: float, x2: float, y2: float, exclude: np.ndarray | None = None) -> np.ndarray:
         """:meth:`values_in_boxes` of one box, ``exclude`` (K,4)."""
         ex = None if exclude is None or not len(exclude) else np.asarray(exclude, float).reshape(1, -1, 4)
         return self.values_in_boxes(np.array([[x1, y1, x2, y2]], float), ex)[0]
+
+
+def _values_in_boxes(keys: np.ndarray, depth: np.ndarray, width: int, height: int, boxes: np.ndarray, exclude: np.ndarray | None = None,
+                     layers: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """:meth:`DepthImage.values_in_boxes` of ``layers`` depth images stacked: ``keys`` (M,) sorted ``layer * width *
+    height + v * width + u``, ``depth`` (M,). Returns the values (V,), their box (V,) and layer (V,); every row of
+    every box in every layer is one range of ``keys`` (one search for all)."""
+    b = np.asarray(boxes, float).reshape(-1, 4)
+    if not len(b) or not len(keys):
+        return np.zeros(0, np.float32), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    u0, v0 = np.maximum(np.ceil(b[:, 0]), 0).astype(np.int64), np.maximum(np.ceil(b[:, 1]), 0).astype(np.int64)
+    u1, v1 = np.minimum(np.floor(b[:, 2]), width - 1).astype(np.int64), np.minimum(np.floor(b[:, 3]), height - 1).astype(np.int64)
+    nrows = np.where((u1 >= u0) & (v1 >= v0), v1 - v0 + 1, 0)
+    row_box = np.repeat(np.arange(len(b)), nrows)
+    rows = (v0[row_box] + np.arange(len(row_box)) - np.repeat(np.cumsum(nrows) - nrows, nrows)) * width
+    first, last = rows + u0[row_box], rows + u1[row_box]
+    size = width * height
+    if layers > 1:
+        off = np.repeat(np.arange(layers, dtype=np.int64) * size, len(rows))
+        first, last, row_box = np.tile(first, layers) + off, np.tile(last, layers) + off, np.tile(row_box, layers)
+    lo = np.searchsorted(keys, first, "left")
+    counts = np.searchsorted(keys, last, "right") - lo
+    idx = np.repeat(lo - (np.cumsum(counts) - counts), counts) + np.arange(int(counts.sum()))
+    box = np.repeat(row_box, counts)
+    if exclude is not None and len(idx):
+        pix = keys[idx] % size
+        u, v = (pix % width)[:, None], (pix // width)[:, None]
+        ex = np.asarray(exclude, float)[box]  # (V, K, 4)
+        keep = ~((u >= ex[..., 0]) & (u <= ex[..., 2]) & (v >= ex[..., 1]) & (v <= ex[..., 3])).any(axis=1)
+        idx, box = idx[keep], box[keep]
+    layer = keys[idx] // size if layers > 1 else np.zeros(len(idx), np.int64)
+    return depth[idx], box, layer
 
 
 def make_depth_image(camera: Camera, T_cam_lidar: np.ndarray, points_lidar: np.ndarray, t: float = 0.0, min_depth: float = 0.3) -> DepthImage:
@@ -248,12 +263,17 @@ def robust_depths(values: np.ndarray, box: np.ndarray, n_boxes: int, min_points:
     ok = np.flatnonzero(counts >= need)
     none = np.iinfo(np.int64).max
     first_ok = np.full(n_boxes, none)
-    np.minimum.at(first_ok, c_box[ok], ok)
-    rank = np.lexsort((np.arange(len(counts)), -counts, c_box))  # by box, most points first, then the nearer
-    lead = rank[np.r_[True, c_box[rank][1:] != c_box[rank][:-1]]]
-    big = np.full(n_boxes, -1, np.int64)
-    big[c_box[lead]] = lead
-    chosen = np.where(first_ok[boxes] != none, first_ok[boxes], big[boxes])
+    ok_box = c_box[ok]  # ascending (clusters are numbered box by box, nearest first): each box's first is its nearest
+    lead_ok = np.ones(len(ok), bool)
+    lead_ok[1:] = ok_box[1:] != ok_box[:-1]
+    first_ok[ok_box[lead_ok]] = ok[lead_ok]
+    chosen = first_ok[boxes]
+    if (chosen == none).any():  # boxes without a cluster of enough points: their largest
+        rank = np.lexsort((np.arange(len(counts)), -counts, c_box))  # by box, most points first, then the nearer
+        lead = rank[np.r_[True, c_box[rank][1:] != c_box[rank][:-1]]]
+        big = np.full(n_boxes, -1, np.int64)
+        big[c_box[lead]] = lead
+        chosen = np.where(chosen != none, chosen, big[boxes])
     k, s0 = counts[chosen], c_start[chosen]
     med = _sorted_medians(v, s0, k)
     member = np.repeat(np.arange(len(chosen)), k)
@@ -292,6 +312,7 @@ class CloudQueue:
         self.images: deque[DepthImage] = deque()
         self.points = 0
         self.dropped = 0
+        self._stack_cache: tuple[list[DepthImage], np.ndarray, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.images)
@@ -325,6 +346,7 @@ class CloudQueue:
 
     def clear(self) -> None:
         self.images.clear()
+        self._stack_cache = None
         self.points = 0
 
     def depth_in_box(self, xyxy, t: float | None = None, shrink: float = 0.1, max_age_s: float | None = None, exclude: np.ndarray | None = None) -> BoxDepth | None:
@@ -353,25 +375,41 @@ class CloudQueue:
                     ex[i, : len(e)] = np.asarray(e, float).reshape(-1, 4)
         t_now = self.images[-1].t if t is None else float(t)
         limit = self.max_age_s if max_age_s is None else min(float(max_age_s), self.max_age_s)
-        n = np.zeros(len(b), np.int64)
-        used = np.zeros(len(b), np.int64)
-        oldest_t = np.full(len(b), t_now)  # time of the oldest image that gave points (not of an expired one the loop stopped at)
-        vals, owner = [], []
-        active = np.arange(len(b))
+        window = []  # the images within the age limit, newest first
         for img in reversed(self.images):
-            if t_now - img.t > limit or not len(active):
+            if t_now - img.t > limit:
                 break
-            v, j = img.values_in_boxes(shrunk[active], None if ex is None else ex[active])
-            used[active] += 1
-            got = np.bincount(j, minlength=len(active))
-            n[active] += got
-            oldest_t[active[got > 0]] = img.t
-            vals.append(v)
-            owner.append(active[j])
-            active = active[n[active] < self.min_box_points]
-        if not vals:
+            window.append(img)
+        if not window:
             return out
-        depth, sigma, k = robust_depths(np.concatenate(vals), np.concatenate(owner), len(b))
+        keys, depths = self._stack(window)
+        R = len(window)
+        v, j, r = _values_in_boxes(keys, depths, window[0].width, window[0].height, shrunk, ex, R)
+        # each box reads the newest image, then older ones while it holds fewer than min_box_points points
+        got = np.bincount(j * R + r, minlength=len(b) * R).reshape(len(b), R)
+        cum = np.cumsum(got, axis=1)
+        reach = cum >= self.min_box_points
+        cut = np.where(reach.any(axis=1), np.argmax(reach, axis=1), R - 1)  # the oldest layer each box reads
+        n = cum[np.arange(len(b)), cut]
+        gave = (got > 0) & (np.arange(R)[None] <= cut[:, None])
+        oldest = R - 1 - np.argmax(gave[:, ::-1], axis=1)
+        times = np.array([img.t for img in window])
+        oldest_t = np.where(gave.any(axis=1), times[oldest], t_now)  # time of the oldest image that gave points
+        keep = r <= cut[j]
+        depth, sigma, k = robust_depths(v[keep], j[keep], len(b))
         for i in np.flatnonzero(k):
-            out[i] = BoxDepth(float(depth[i]), float(sigma[i]), int(k[i]), int(n[i]), t_now - float(oldest_t[i]), int(used[i]))
+            out[i] = BoxDepth(float(depth[i]), float(sigma[i]), int(k[i]), int(n[i]), t_now - float(oldest_t[i]), int(cut[i]) + 1)
         return out
+
+    def _stack(self, window: list[DepthImage]) -> tuple[np.ndarray, np.ndarray]:
+        """``window`` (newest first) as one sorted key array (layer k = the k-th newest: ``k * width * height`` +
+        pixel) and its depths; kept until the window changes (a frame's queries share it, as do the frames until
+        the next cloud)."""
+        c = self._stack_cache
+        if c is not None and len(c[0]) == len(window) and all(a is b for a, b in zip(c[0], window)):
+            return c[1], c[2]
+        size = window[0].width * window[0].height
+        keys = np.concatenate([img.pix + k * size for k, img in enumerate(window)])
+        depths = np.concatenate([img.depth for img in window])
+        self._stack_cache = (list(window), keys, depths)
+        return keys, depths

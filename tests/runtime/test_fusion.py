@@ -7,7 +7,7 @@ import pytest
 from runtime_scene import robot_cloud
 
 from radarcal.geometry import invert_T, transform_points
-from radarcal.runtime.fusion import CloudQueue, make_depth_image, robust_depth, robust_depths
+from radarcal.runtime.fusion import BoxDepth, CloudQueue, make_depth_image, robust_depth, robust_depths
 
 
 def test_depth_image_is_nearest_per_pixel(station):
@@ -98,6 +98,32 @@ def test_depths_of_all_boxes_at_once_equal_one_box_at_a_time(station):
     plain = q.depths_in_boxes(boxes, t=0.35, max_age_s=0.3)
     assert any(a != b for a, b, e in zip(batch, plain, excludes) if e is not None)  # the rectangles in front matter
     assert batch == single
+    assert batch == [_plain_box_depth(q, b, 0.35, 0.3, e) for b, e in zip(boxes, excludes)]
+
+
+def _plain_box_depth(q: CloudQueue, box, t: float, max_age_s: float, exclude, shrink: float = 0.1) -> BoxDepth | None:
+    """The reference: image by image, newest first, the dense image's pixels whose centres lie in the shrunk box and
+    outside every rectangle of ``exclude``, pooled while fewer than 3."""
+    x1, y1, x2, y2 = box
+    dx, dy = (x2 - x1) * shrink, (y2 - y1) * shrink
+    vals, used, oldest = [], 0, t
+    for img in reversed(q.images):
+        if t - img.t > max_age_s:
+            break
+        used += 1
+        d = img.dense()
+        vv, uu = np.mgrid[: d.shape[0], : d.shape[1]]
+        m = np.isfinite(d) & (uu >= x1 + dx) & (uu <= x2 - dx) & (vv >= y1 + dy) & (vv <= y2 - dy)
+        for ex in [] if exclude is None else exclude:
+            m &= ~((uu >= ex[0]) & (uu <= ex[2]) & (vv >= ex[1]) & (vv <= ex[3]))
+        if m.any():
+            vals.append(d[m])
+            oldest = img.t
+        if sum(len(v) for v in vals) >= 3:
+            break
+    v = np.concatenate(vals) if vals else np.zeros(0, np.float32)
+    r = robust_depth(v) if len(v) else None
+    return None if r is None else BoxDepth(r[0], r[1], r[2], len(v), t - oldest, used)
 
 
 def test_queue_budget_age_and_fallback(station):
