@@ -28,6 +28,10 @@ SURFACE_STEP_M = 0.05  # m: a step of the surface this high at or behind the bot
 BEYOND_HIT_M = 0.02  # m: how far beyond a ray's hit (along the view) the surface is looked up for a wall face
 
 
+_NEWTON_EPS = 1e-7  # RayTable's central differences: the point and its four neighbours
+_NEWTON_STEPS = np.array([[0, 0], [_NEWTON_EPS, 0], [-_NEWTON_EPS, 0], [0, _NEWTON_EPS], [0, -_NEWTON_EPS]])
+
+
 def flat_ground_intersect(origins: np.ndarray, dirs: np.ndarray, z: float = 0.0) -> np.ndarray:
     """Rays (N,3),(N,3) against the plane z = ``z``; NaN rows where the ray does not go down to it."""
     o, d = np.asarray(origins, float), np.asarray(dirs, float)
@@ -61,8 +65,8 @@ class RayTable:
         uv = np.asarray(uv, float).reshape(-1, 2)
         fu = (uv[:, 0] - self.u0) / self.step
         fv = (uv[:, 1] - self.v0) / self.step
-        iu = np.clip(np.floor(fu).astype(np.int64), 0, self.xy.shape[1] - 2)
-        iv = np.clip(np.floor(fv).astype(np.int64), 0, self.xy.shape[0] - 2)
+        iu = np.minimum(np.maximum(np.floor(fu).astype(np.int64), 0), self.xy.shape[1] - 2)
+        iv = np.minimum(np.maximum(np.floor(fv).astype(np.int64), 0), self.xy.shape[0] - 2)
         a = (fu - iu)[:, None]
         b = (fv - iv)[:, None]
         g = self.xy
@@ -70,11 +74,10 @@ class RayTable:
         if self.refine:
             xyd = uv @ self.K_inv[:2, :2].T + self.K_inv[:2, 2]
             dist = self.camera.distort
-            eps = 1e-7
-            steps = np.array([[0, 0], [eps, 0], [-eps, 0], [0, eps], [0, -eps]])
+            eps = _NEWTON_EPS
             for _ in range(self.refine):
                 # the point and its four central-difference neighbours in one call
-                dd = dist((xy[None] + steps[:, None]).reshape(-1, 2)).reshape(5, -1, 2)
+                dd = dist((xy[None] + _NEWTON_STEPS[:, None]).reshape(-1, 2)).reshape(5, -1, 2)
                 f = dd[0] - xyd
                 jx = (dd[1] - dd[2]) / (2 * eps)
                 jy = (dd[3] - dd[4]) / (2 * eps)
@@ -136,20 +139,21 @@ class Localiser:
             out_xy = p[:, :2] + np.where(norm > 1e-9, d / norm, 0.0) * dist
         return out_xy
 
-    def from_depth(self, uv: np.ndarray, depth_z: np.ndarray) -> np.ndarray:
-        """Box-centre pixels (K,2) + camera-frame z (K,) -> robot centres (K,3) in the field."""
+    def from_depth(self, uv: np.ndarray, depth_z: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
+        """Box-centre pixels (K,2) + camera-frame z (K,) -> robot centres (K,3) in the field. ``rays``: the pixels'
+        unit camera rays when already looked up (:meth:`box_rays`)."""
         uv = np.asarray(uv, float).reshape(-1, 2)
-        rays = self.ray_table.rays(uv)
+        rays = self.ray_table.rays(uv) if rays is None else rays
         with np.errstate(divide="ignore", invalid="ignore"):
             p_cam = rays / rays[:, 2:3] * np.asarray(depth_z, float).reshape(-1, 1)
         p = p_cam @ self.T_field_cam[:3, :3].T + self.T_field_cam[:3, 3]
         xy = self._push_back(p, self.visible_depth_factor * self.radius)
         return np.column_stack([xy, self.surface_z(xy)])
 
-    def _surface_hits(self, uv: np.ndarray) -> np.ndarray:
+    def _surface_hits(self, uv: np.ndarray, rays_cam: np.ndarray | None = None) -> np.ndarray:
         """Pixels (K,2) -> (K,3) first hits of their rays with the field surface (the plane z = 0 without a field
-        model); NaN rows where a ray misses."""
-        dirs = self.rays_field(uv)
+        model); NaN rows where a ray misses. ``rays_cam``: their unit camera rays when already looked up."""
+        dirs = self.rays_field(uv) if rays_cam is None else rays_cam @ self.T_field_cam[:3, :3].T
         origins = np.broadcast_to(self.cam_origin, dirs.shape)
         if self.field is not None:
             return np.asarray(self.field.intersect_rays(np.ascontiguousarray(origins), dirs), float)
@@ -162,13 +166,17 @@ class Localiser:
         xy = self._push_back(hit, self.radius)
         return np.column_stack([xy, self.surface_z(xy)]) * np.where(np.isfinite(hit[:, :1]), 1.0, np.nan)
 
-    def foot_hits(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def box_rays(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Boxes (K,4) -> surface hits (K,3) of the rays through each bottom-centre pixel and :data:`FOOT_UP_PX`
-        above it (:meth:`from_ground`, :meth:`hidden_foot`), cast together."""
+        above it (:meth:`from_ground`, :meth:`hidden_foot`), cast together; the ground-ray robot centres (K,3) of
+        the first (:meth:`from_ground`); the unit camera rays (K,3) through the box centres (:meth:`from_depth`).
+        All rays from one table lookup (:meth:`locate` takes the lot as ``foot``)."""
         b = np.asarray(boxes, float).reshape(-1, 4)
+        k = len(b)
         uv = np.column_stack([0.5 * (b[:, 0] + b[:, 2]), b[:, 3]])
-        hits = self._surface_hits(np.vstack([uv, uv - [0.0, FOOT_UP_PX]]))
-        return hits[: len(b)], hits[len(b) :]
+        rays = self.ray_table.rays(np.vstack([uv, uv - [0.0, FOOT_UP_PX], np.column_stack([uv[:, 0], (b[:, 1] + b[:, 3]) / 2])]))
+        hits = self._surface_hits(None, rays[: 2 * k])
+        return hits[:k], hits[k:], self.from_ground(uv, hits[:k]), rays[2 * k :]
 
     def hidden_foot(self, uv_bottom: np.ndarray, hit: np.ndarray | None = None, above: np.ndarray | None = None) -> np.ndarray:
         """(K,) bool: boxes' bottom-centre pixels (K,2) where the terrain may hide the robot's foot, so that the bottom
@@ -178,7 +186,7 @@ class Localiser:
         the ray :data:`FOOT_UP_PX` above meets the surface :data:`SURFACE_STEP_M` or more lower (the area ends right
         behind the hit). A robot standing at a step or on the very edge of an area looks alike: ambiguous, not
         wrong. False without a field model (flat ground hides nothing). ``hit``, ``above``: the rays' hits when already
-        cast (:meth:`foot_hits`)."""
+        cast (:meth:`box_rays`)."""
         uv_bottom = np.asarray(uv_bottom, float).reshape(-1, 2)
         if self.field is None or not len(uv_bottom):
             return np.zeros(len(uv_bottom), bool)
@@ -190,8 +198,8 @@ class Localiser:
             wall = self.surface_z(np.nan_to_num(beyond)) > hit[:, 2] + SURFACE_STEP_M
             return wall | (above[:, 2] < hit[:, 2] - SURFACE_STEP_M)
 
-    def locate(self, boxes: np.ndarray, depth_z: np.ndarray, depth_sigma: np.ndarray | None = None, foot: tuple[np.ndarray, np.ndarray] | None = None) -> Located:
-        """Boxes (K,4) xyxy + depths (K,) (NaN = no LiDAR depth) -> :class:`Located`. ``foot``: :meth:`foot_hits`
+    def locate(self, boxes: np.ndarray, depth_z: np.ndarray, depth_sigma: np.ndarray | None = None, foot: tuple[np.ndarray, ...] | None = None) -> Located:
+        """Boxes (K,4) xyxy + depths (K,) (NaN = no LiDAR depth) -> :class:`Located`. ``foot``: :meth:`box_rays`
         of the boxes when already cast."""
         boxes = np.asarray(boxes, float).reshape(-1, 4)
         depth_z = np.asarray(depth_z, float).reshape(-1)
@@ -205,7 +213,7 @@ class Localiser:
         cx = (boxes[:, 0] + boxes[:, 2]) / 2
         if has.any():
             uv = np.column_stack([cx[has], (boxes[has, 1] + boxes[has, 3]) / 2])
-            p[has] = self.from_depth(uv, depth_z[has])
+            p[has] = self.from_depth(uv, depth_z[has], None if foot is None else foot[3][has])
             # a robot's centre is inside the field: a depth that puts it beyond the boundary came from the perimeter
             # wall (or the crowd) behind a robot the LiDAR missed, so that box takes the ground ray instead
             out = self.outside_field(p) & has
@@ -219,7 +227,7 @@ class Localiser:
         if (~has).any():
             uvb = np.column_stack([cx[~has], boxes[~has, 3]])
             hit, above = (self._surface_hits(uvb), None) if foot is None else (foot[0][~has], foot[1][~has])
-            g = self.from_ground(uvb, hit)
+            g = self.from_ground(uvb, hit) if foot is None else foot[2][~has]
             g[self.outside_field(g)] = np.nan  # a robot's centre is inside the field: the ray passed over what hides it
             p[~has] = g
             ok = np.isfinite(g[:, 0])

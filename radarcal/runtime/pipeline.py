@@ -130,6 +130,9 @@ def _number_of(label: str | None) -> int | None:
     return int(tail) if tail.isdigit() else None
 
 
+_ASK = object()  # :meth:`Pipeline._depth_order`: this box's depth is not known yet
+
+
 def boxes_in_front(boxes: np.ndarray, frame_boxes: np.ndarray) -> np.ndarray:
     """(K, M) bool: box m of the camera frame (pixels xyxy) overlaps box k and its bottom edge is lower (> 2 px) in
     the image — a robot standing nearer, whose pixels hide part of box k."""
@@ -155,15 +158,15 @@ def no_ground_ray(boxes: np.ndarray, frame_boxes: np.ndarray, min_aspect: float)
     return flat | foot.any(axis=1)
 
 
-def foot_beyond(localiser: Localiser, boxes: np.ndarray, frame_boxes: np.ndarray, p_field: np.ndarray, min_aspect: float, hit: np.ndarray | None = None) -> np.ndarray:
+def foot_beyond(localiser: Localiser, boxes: np.ndarray, frame_boxes: np.ndarray, p_field: np.ndarray, min_aspect: float, ground: np.ndarray | None = None) -> np.ndarray:
     """(K,) how far (m, horizontally along the view) beyond its located centre ``p_field`` (K,3) the bottom edge of
     each box puts its robot: the range of the bottom centre's ground ray (``Localiser.from_ground``, on the field's
     surface, so a robot on a highland far behind is not taken for one in front) minus the located range; inf where the
     edge is not the robot's foot (:func:`no_ground_ray`: a robot in front hides it, or a hidden robot's top) or the
-    ray meets no surface. A box-depth fix taken from a robot standing in front lies well short of it. ``hit``: the
-    bottom centres' surface hits when already cast (:meth:`Localiser.foot_hits`)."""
+    ray meets no surface. A box-depth fix taken from a robot standing in front lies well short of it. ``ground``:
+    the boxes' ground-ray centres when already cast (:meth:`Localiser.box_rays`)."""
     b = np.asarray(boxes, float).reshape(-1, 4)
-    g = localiser.from_ground(np.column_stack([0.5 * (b[:, 0] + b[:, 2]), b[:, 3]]), hit)
+    g = localiser.from_ground(np.column_stack([0.5 * (b[:, 0] + b[:, 2]), b[:, 3]])) if ground is None else ground
     o = localiser.cam_origin[:2]
     beyond = np.linalg.norm(g[:, :2] - o, axis=1) - np.linalg.norm(np.asarray(p_field, float).reshape(-1, 3)[:, :2] - o, axis=1)
     return np.where(np.isfinite(beyond) & ~no_ground_ray(b, frame_boxes, min_aspect), beyond, np.inf)
@@ -269,47 +272,69 @@ class Pipeline:
         if queue is None:
             return depth, dsig
         queue.expire(t)
+        boxes = np.asarray(boxes, float).reshape(-1, 4)
         fb = boxes if frame_boxes is None else np.asarray(frame_boxes, float).reshape(-1, 4)
-        fronts = self._depth_order(boxes, fb, t, queue)
-        bds = queue.depths_in_boxes(boxes, t, max_age_s=self.cfg.depth_max_age_s, excludes=[fb[front] if front.any() else None for front in fronts])
+        fronts, answered = self._depth_order(boxes, fb, t, queue)
+        bds = list(answered)
+        todo = [k for k, bd in enumerate(answered) if bd is _ASK]
+        if todo:
+            got = queue.depths_in_boxes(boxes[todo], t, max_age_s=self.cfg.depth_max_age_s, excludes=[fb[fronts[k]] if fronts[k].any() else None for k in todo])
+            for k, bd in zip(todo, got):
+                bds[k] = bd
         for i, bd in enumerate(bds):
             if bd is not None:
                 depth[i], dsig[i] = bd.depth, bd.sigma
         return depth, dsig
 
-    def _depth_order(self, boxes: np.ndarray, frame_boxes: np.ndarray, t: float, queue: CloudQueue) -> np.ndarray:
+    def _depth_order(self, boxes: np.ndarray, frame_boxes: np.ndarray, t: float, queue: CloudQueue) -> tuple[np.ndarray, list]:
         """(K, M) bool: frame box m hides part of box k (:func:`boxes_in_front`), ordered by the LiDAR where it can:
         two overlapping boxes whose own pixels (the overlap excluded) are more than ``max(0.35 m, 3 %)`` apart in
         depth are in that order, whatever their bottom edges say — a nearer robot whose bottom a terrain edge
         hides has its box bottom higher than the robot behind it (both cameras of family A / B: most of the box
-        depths over 0.4 m short beyond 15 m). A box without 3 returns of its own keeps the bottom-edge order."""
+        depths over 0.4 m short beyond 15 m). A box without 3 returns of its own keeps the bottom-edge order.
+
+        Also (K,) the box depth (:meth:`CloudQueue.depths_in_boxes`, ``None``: no depth) of each box whose pixels
+        hidden by the boxes in front are already known from the same query — all of its box (nothing in front), or
+        its own pixels (every box it overlaps is in front) — and :data:`_ASK` for the others: one query answers most
+        frames."""
         b = np.asarray(boxes, float).reshape(-1, 4)
         f = np.asarray(frame_boxes, float).reshape(-1, 4)
         front = boxes_in_front(b, f)
         overlap = _overlapping_others(b, f)
         if not overlap.any():
-            return front
-
-        def own_depths(bx, others):  # each box's depth from its own pixels (one or two returns: maybe the background)
-            bds = queue.depths_in_boxes(bx, t, max_age_s=self.cfg.depth_max_age_s, excludes=[o if len(o) else None for o in others])
-            return np.array([bd.depth if bd is not None and bd.n >= 3 else np.nan for bd in bds])
-
-        # own depths once per frame box (the boxes located are frame boxes too: looked up, not computed twice)
+            return front, [_ASK] * len(b)
+        # own depths once per frame box (the boxes located are frame boxes too: looked up, not computed twice), and
+        # in the same query every located box whole
         ff_overlap = _overlapping_others(f, f)
         same = np.all(b[:, None] == f[None], axis=2)
         need = np.flatnonzero(overlap.any(axis=0) | (same & overlap.any(axis=1)[:, None]).any(axis=0))
         has_same = same.any(axis=1)
         alone = np.flatnonzero(~has_same & overlap.any(axis=1))  # located boxes that are not frame boxes
-        both = own_depths(np.vstack([f[need], b[alone]]), [f[ff_overlap[m]] for m in need] + [f[overlap[k]] for k in alone])
+        others = [f[ff_overlap[m]] for m in need] + [f[overlap[k]] for k in alone]
+        bds = queue.depths_in_boxes(np.vstack([f[need], b[alone], b]), t, max_age_s=self.cfg.depth_max_age_s,
+                                    excludes=[o if len(o) else None for o in others] + [None] * len(b))  # fmt: skip
+        n_own = len(need) + len(alone)
+        twin = np.argmax(same, axis=1)
+        own_row = dict(zip(need.tolist(), range(len(need))))  # frame box -> its row of the query
+        # one or two returns of its own: maybe the background, so no order from them
+        own_depth = np.array([bd.depth if bd is not None and bd.n >= 3 else np.nan for bd in bds[:n_own]])
         own_f = np.full(len(f), np.nan)
-        own_f[need] = both[: len(need)]
+        own_f[need] = own_depth[: len(need)]
         own_b = np.full(len(b), np.nan)
-        own_b[has_same] = own_f[np.argmax(same[has_same], axis=1)]
-        own_b[alone] = both[len(need) :]
+        own_b[has_same] = own_f[twin[has_same]]
+        own_b[alone] = own_depth[len(need) :]
         own_b[~overlap.any(axis=1)] = np.nan
         gap = np.maximum(0.35, 0.03 * own_b[:, None])
         known = np.isfinite(own_b)[:, None] & np.isfinite(own_f)[None, :]
-        return overlap & np.where(known, own_f[None, :] < own_b[:, None] - gap, front) | (front & known & (np.abs(own_f[None, :] - own_b[:, None]) <= gap))
+        fronts = overlap & np.where(known, own_f[None, :] < own_b[:, None] - gap, front) | (front & known & (np.abs(own_f[None, :] - own_b[:, None]) <= gap))
+        answered: list = [_ASK] * len(b)
+        alone_row = dict(zip(alone.tolist(), range(len(need), n_own)))
+        for k in range(len(b)):
+            if not fronts[k].any():
+                answered[k] = bds[n_own + k]
+            elif np.array_equal(fronts[k], overlap[k]):  # its own pixels (a box that overlaps: a frame box in need, or alone)
+                answered[k] = bds[own_row[int(twin[k])] if has_same[k] else alone_row[k]]
+        return fronts, answered
 
     def process(self, t: float, frame: str, detections, timings: dict[str, float] | None = None, team: str | None = None) -> FrameResult:
         """``detections``: a list (the primary camera) or :class:`radarcal.runtime.multicam.ViewDetections` (several)."""
@@ -394,12 +419,12 @@ class Pipeline:
         def locate_boxes(idx: list[int]):
             b = boxes[idx]
             depth, dsig = self._box_depths(b, t, view.queue, boxes)
-            foot = view.localiser.foot_hits(b)  # bottom-edge rays cast once for the ground ray and foot_beyond
+            foot = view.localiser.box_rays(b)  # the rays cast once for the box depth, the ground ray and foot_beyond
             loc = view.localiser.locate(b, depth, dsig, foot)
             loc.source[no_ground_ray(b, boxes, self.cfg.ground_min_aspect) & (loc.source == "ground")] = "none"
             for n, j in enumerate(idx):
                 fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
-            return loc.p_field, loc.sigma, loc.source, foot_beyond(view.localiser, b, boxes, loc.p_field, self.cfg.ground_min_aspect, foot[0])
+            return loc.p_field, loc.sigma, loc.source, foot_beyond(view.localiser, b, boxes, loc.p_field, self.cfg.ground_min_aspect, foot[2])
 
         return locate_boxes
 
