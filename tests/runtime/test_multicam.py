@@ -11,6 +11,7 @@ from radarcal.geometry import invert_T
 from radarcal.runtime.localise import Localiser
 from radarcal.runtime.lidar_first import box_fix_order, fuse_fixes, misread_holder, on_other_robot
 from radarcal.runtime.multicam import TickDetector, group_by_time, missing_text, parse_videos
+import radarcal.runtime.pipeline as P
 from radarcal.runtime.pipeline import boxes_in_front, foot_beyond, fuse_by_label, no_ground_ray
 from radarcal.runtime.sources import CameraFrame
 from radarcal.runtime.tracks import Tracker3D
@@ -254,6 +255,43 @@ def test_box_depth_orders_overlapping_boxes_by_their_own_lidar_depth():
     assert not boxes_in_front(boxes[1:], boxes).any()  # by the bottom edges the near robot is behind
     depth, _ = pipe._box_depths(boxes, 0.0)
     assert abs(depth[1] - z_far) < 0.3 and abs(depth[0] - z_near) < 0.3
+
+
+def test_box_depths_from_the_depth_orders_query_equal_a_second_query_with_the_boxes_in_front():
+    """The depth order's query also answers the boxes with nothing in front (read whole) and those whose every
+    overlapping box is in front (their own pixels): the result must be what a second query excluding each box's
+    boxes in front gives — on random crowds of overlapping boxes, located boxes the frame's boxes, a subset of them,
+    or boxes not among them."""
+    from runtime_scene import robot_cloud
+
+    from radarcal.geometry import invert_T, transform_points
+
+    pipe, _, _ = _near_and_far_robot()
+    rng = np.random.default_rng(7)
+    T_field_cam = pipe.T_field_cam
+    T_lidar_field = invert_T(T_field_cam @ pipe.views["cam0"].queue.T_cam_lidar)
+    eye, ahead = T_field_cam[:2, 3], T_field_cam[:2, 2] / np.linalg.norm(T_field_cam[:2, 2])
+    side = np.array([-ahead[1], ahead[0]])
+    at = eye + rng.uniform(6, 16, (8, 1)) * ahead + rng.uniform(-2, 2, (8, 1)) * side
+    pts = np.vstack([robot_cloud(c, height=float(rng.uniform(0.4, 1.2)), viewer_xy=eye, rng=rng) for c in at])
+    pipe.add_cloud(0.05, transform_points(T_lidar_field, pts))
+    q, T_cam_field = pipe.views["cam0"].queue, invert_T(T_field_cam)
+    uv, _ = pipe.camera.project(transform_points(T_cam_field, np.column_stack([at, np.full(8, 0.3)])))
+    shortcuts = checked = 0
+    for trial in range(60):
+        n = int(rng.integers(2, 9))
+        c = uv[rng.integers(0, 8, n)] + rng.normal(0, 25, (n, 2))
+        half = rng.uniform([10, 15], [45, 70], (n, 2))
+        fb = np.column_stack([c - half, c + half])
+        b = [fb, fb[rng.permutation(n)[: max(1, n // 2)]], np.vstack([fb[:1], fb[1:2] + rng.normal(0, 8, 4)])][trial % 3]
+        depth, sigma = pipe._box_depths(b, 0.1, frame_boxes=fb)
+        fronts, answered = pipe._depth_order(b, fb, 0.1, q)
+        shortcuts += sum(a is not P._ASK for a in answered)
+        ref = q.depths_in_boxes(b, 0.1, max_age_s=pipe.cfg.depth_max_age_s, excludes=[fb[f] if f.any() else None for f in fronts])
+        np.testing.assert_array_equal(depth, [r.depth if r is not None else np.nan for r in ref])
+        np.testing.assert_array_equal(sigma, [r.sigma if r is not None else np.nan for r in ref])
+        checked += len(b)
+    assert shortcuts > checked // 3  # the depth order's query answers a good part of them
 
 
 def test_a_lost_track_does_not_jump_farther_than_a_robot_can_move():
