@@ -99,6 +99,7 @@ class Located:
     source: np.ndarray  # (K,) "depth" | "ground" | "none"
     sigma: np.ndarray  # (K,) 1-sigma horizontal position uncertainty (m), NaN if unknown
     range_m: np.ndarray  # (K,) horizontal distance camera -> robot
+    ground: np.ndarray  # (K,3) every box's ground-ray centre (:meth:`Localiser.from_ground`), NaN rows where its ray misses
 
 
 class Localiser:
@@ -142,13 +143,17 @@ class Localiser:
     def from_depth(self, uv: np.ndarray, depth_z: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
         """Box-centre pixels (K,2) + camera-frame z (K,) -> robot centres (K,3) in the field. ``rays``: the pixels'
         unit camera rays when already looked up (:meth:`box_rays`)."""
+        xy = self._depth_xy(uv, depth_z, rays)
+        return np.column_stack([xy, self.surface_z(xy)])
+
+    def _depth_xy(self, uv: np.ndarray, depth_z: np.ndarray, rays: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`from_depth` without the surface height: (K,2) field xy."""
         uv = np.asarray(uv, float).reshape(-1, 2)
         rays = self.ray_table.rays(uv) if rays is None else rays
         with np.errstate(divide="ignore", invalid="ignore"):
             p_cam = rays / rays[:, 2:3] * np.asarray(depth_z, float).reshape(-1, 1)
         p = p_cam @ self.T_field_cam[:3, :3].T + self.T_field_cam[:3, 3]
-        xy = self._push_back(p, self.visible_depth_factor * self.radius)
-        return np.column_stack([xy, self.surface_z(xy)])
+        return self._push_back(p, self.visible_depth_factor * self.radius)
 
     def _surface_hits(self, uv: np.ndarray, rays_cam: np.ndarray | None = None) -> np.ndarray:
         """Pixels (K,2) -> (K,3) first hits of their rays with the field surface (the plane z = 0 without a field
@@ -166,17 +171,16 @@ class Localiser:
         xy = self._push_back(hit, self.radius)
         return np.column_stack([xy, self.surface_z(xy)]) * np.where(np.isfinite(hit[:, :1]), 1.0, np.nan)
 
-    def box_rays(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def box_rays(self, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Boxes (K,4) -> surface hits (K,3) of the rays through each bottom-centre pixel and :data:`FOOT_UP_PX`
-        above it (:meth:`from_ground`, :meth:`hidden_foot`), cast together; the ground-ray robot centres (K,3) of
-        the first (:meth:`from_ground`); the unit camera rays (K,3) through the box centres (:meth:`from_depth`).
-        All rays from one table lookup (:meth:`locate` takes the lot as ``foot``)."""
+        above it (:meth:`from_ground`, :meth:`hidden_foot`), cast together, and the unit camera rays (K,3) through
+        the box centres (:meth:`from_depth`): all from one table lookup (:meth:`locate` takes the lot as ``foot``)."""
         b = np.asarray(boxes, float).reshape(-1, 4)
         k = len(b)
         uv = np.column_stack([0.5 * (b[:, 0] + b[:, 2]), b[:, 3]])
         rays = self.ray_table.rays(np.vstack([uv, uv - [0.0, FOOT_UP_PX], np.column_stack([uv[:, 0], (b[:, 1] + b[:, 3]) / 2])]))
         hits = self._surface_hits(None, rays[: 2 * k])
-        return hits[:k], hits[k:], self.from_ground(uv, hits[:k]), rays[2 * k :]
+        return hits[:k], hits[k:], rays[2 * k :]
 
     def hidden_foot(self, uv_bottom: np.ndarray, hit: np.ndarray | None = None, above: np.ndarray | None = None) -> np.ndarray:
         """(K,) bool: boxes' bottom-centre pixels (K,2) where the terrain may hide the robot's foot, so that the bottom
@@ -192,15 +196,23 @@ class Localiser:
             return np.zeros(len(uv_bottom), bool)
         hit = self._surface_hits(uv_bottom) if hit is None else hit
         above = self._surface_hits(uv_bottom - [0.0, FOOT_UP_PX]) if above is None else above
+        return self._hidden_foot(hit, above, self.surface_z(self._beyond(hit)))
+
+    def _beyond(self, hit: np.ndarray) -> np.ndarray:
+        """(K,2) where :meth:`hidden_foot` looks up the surface: :data:`BEYOND_HIT_M` beyond each hit along the view."""
         view = hit[:, :2] - self.cam_origin[:2]
         with np.errstate(invalid="ignore", divide="ignore"):
-            beyond = hit[:, :2] + BEYOND_HIT_M * view / np.linalg.norm(view, axis=1, keepdims=True)
-            wall = self.surface_z(np.nan_to_num(beyond)) > hit[:, 2] + SURFACE_STEP_M
-            return wall | (above[:, 2] < hit[:, 2] - SURFACE_STEP_M)
+            return np.nan_to_num(hit[:, :2] + BEYOND_HIT_M * view / np.linalg.norm(view, axis=1, keepdims=True))
+
+    @staticmethod
+    def _hidden_foot(hit: np.ndarray, above: np.ndarray, z_beyond: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore"):
+            return (z_beyond > hit[:, 2] + SURFACE_STEP_M) | (above[:, 2] < hit[:, 2] - SURFACE_STEP_M)
 
     def locate(self, boxes: np.ndarray, depth_z: np.ndarray, depth_sigma: np.ndarray | None = None, foot: tuple[np.ndarray, ...] | None = None) -> Located:
         """Boxes (K,4) xyxy + depths (K,) (NaN = no LiDAR depth) -> :class:`Located`. ``foot``: :meth:`box_rays`
-        of the boxes when already cast."""
+        of the boxes when already cast. One surface lookup serves the depth centres, the ground-ray centres (of
+        every box: :attr:`Located.ground`) and the wall check of :meth:`hidden_foot`."""
         boxes = np.asarray(boxes, float).reshape(-1, 4)
         depth_z = np.asarray(depth_z, float).reshape(-1)
         k = len(boxes)
@@ -208,15 +220,25 @@ class Localiser:
         src = np.full(k, "none", dtype=object)
         sigma = np.full(k, np.nan)
         if k == 0:
-            return Located(p, src.astype(str), sigma, np.zeros(0))
+            return Located(p, src.astype(str), sigma, np.zeros(0), np.zeros((0, 3)))
         has = np.isfinite(depth_z) & (depth_z > 0)
         cx = (boxes[:, 0] + boxes[:, 2]) / 2
+        uvb = np.column_stack([cx, boxes[:, 3]])
+        hit, above, rays_c = (self._surface_hits(uvb), None, None) if foot is None else foot
+        xy_d = self._depth_xy(np.column_stack([cx[has], (boxes[has, 1] + boxes[has, 3]) / 2]), depth_z[has], None if rays_c is None else rays_c[has])
+        # a robot's centre is inside the field: a depth that puts it beyond the boundary came from the perimeter
+        # wall (or the crowd) behind a robot the LiDAR missed, so that box takes the ground ray instead
+        out = np.zeros(k, bool)
+        out[has] = self.outside_field(xy_d)
+        ground_ray = ~has | out
+        hidden = self.field is not None and ground_ray.any()
+        xy_g = self._push_back(hit, self.radius)
+        beyond = self._beyond(hit[ground_ray]) if hidden else np.zeros((0, 2))
+        z = self.surface_z(np.vstack([xy_d, xy_g, beyond]))
+        nd, nk = len(xy_d), len(xy_d) + k
+        ground = np.column_stack([xy_g, z[nd:nk]]) * np.where(np.isfinite(hit[:, :1]), 1.0, np.nan)
         if has.any():
-            uv = np.column_stack([cx[has], (boxes[has, 1] + boxes[has, 3]) / 2])
-            p[has] = self.from_depth(uv, depth_z[has], None if foot is None else foot[3][has])
-            # a robot's centre is inside the field: a depth that puts it beyond the boundary came from the perimeter
-            # wall (or the crowd) behind a robot the LiDAR missed, so that box takes the ground ray instead
-            out = self.outside_field(p) & has
+            p[has] = np.column_stack([xy_d, z[:nd]])
             has &= ~out
             p[out] = np.nan
             src[has] = "depth"
@@ -224,25 +246,27 @@ class Localiser:
             # along-ray depth error + lateral pixel error (small) + the radius model (robots are not cylinders)
             lateral = depth_z[has] * self.pixel_sigma / self.camera.fx
             sigma[has] = np.sqrt(ds**2 + lateral**2 + (0.25 * self.radius) ** 2)
-        if (~has).any():
-            uvb = np.column_stack([cx[~has], boxes[~has, 3]])
-            hit, above = (self._surface_hits(uvb), None) if foot is None else (foot[0][~has], foot[1][~has])
-            g = self.from_ground(uvb, hit) if foot is None else foot[2][~has]
+        if ground_ray.any():
+            g = ground[ground_ray]
             g[self.outside_field(g)] = np.nan  # a robot's centre is inside the field: the ray passed over what hides it
-            p[~has] = g
+            p[ground_ray] = g
             ok = np.isfinite(g[:, 0])
-            src[np.flatnonzero(~has)[ok]] = "ground"
+            src[np.flatnonzero(ground_ray)[ok]] = "ground"
             # ground error for a pixel error dv: dR = (R^2 + h^2) / h * dv / f
             rng_h = np.linalg.norm(g[:, :2] - self.cam_origin[:2], axis=1)
             h = np.maximum(self.cam_origin[2] - g[:, 2], 0.1)
             sig_g = np.sqrt(((rng_h**2 + h**2) / h * self.pixel_sigma / self.camera.fy) ** 2 + (0.25 * self.radius) ** 2)
             # where the terrain may hide the foot the ray may lie metres short: kept, but weak (dropping it lost robots
             # climbing steps on the 2024 mesh replays)
-            sigma[~has] = np.where(self.hidden_foot(uvb, hit, above), np.maximum(sig_g, HIDDEN_FOOT_SIGMA_M), sig_g)
+            if hidden:
+                hit_g = hit[ground_ray]
+                up = self._surface_hits(uvb[ground_ray] - [0.0, FOOT_UP_PX]) if above is None else above[ground_ray]
+                sig_g = np.where(self._hidden_foot(hit_g, up, z[nk:]), np.maximum(sig_g, HIDDEN_FOOT_SIGMA_M), sig_g)
+            sigma[ground_ray] = sig_g
         # a box cut by the image's left or right edge holds only part of the robot: its centre column, hence the
         # bearing, may be off by up to the robot's radius (family A's tele: |across| p95 0.25 m vs 0.04 m beyond 15 m)
         w = self.camera.image_size[0]
         cut = (boxes[:, 0] <= 1.0) | (boxes[:, 2] >= w - 2.0)
         sigma[cut] = np.hypot(sigma[cut], self.radius)
         range_m = np.linalg.norm(p[:, :2] - self.cam_origin[:2], axis=1)
-        return Located(p, src.astype(str), sigma, range_m)
+        return Located(p, src.astype(str), sigma, range_m, ground)

@@ -424,7 +424,7 @@ class Pipeline:
             loc.source[no_ground_ray(b, boxes, self.cfg.ground_min_aspect) & (loc.source == "ground")] = "none"
             for n, j in enumerate(idx):
                 fixes[j] = (loc.p_field[n], float(depth[n]) if np.isfinite(depth[n]) else None)
-            return loc.p_field, loc.sigma, loc.source, foot_beyond(view.localiser, b, boxes, loc.p_field, self.cfg.ground_min_aspect, foot[2])
+            return loc.p_field, loc.sigma, loc.source, foot_beyond(view.localiser, b, boxes, loc.p_field, self.cfg.ground_min_aspect, loc.ground)
 
         return locate_boxes
 

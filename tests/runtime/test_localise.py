@@ -159,3 +159,37 @@ def test_a_ground_ray_whose_foot_a_raised_area_may_hide_is_weak_and_one_outside_
     centres = np.array([(11.25, 7.5), (13.75, 7.5), (8.25, 7.5)])  # the foot pushed back by the radius
     np.testing.assert_allclose(res.p_field[2:5, :2], centres, atol=0.05)
     np.testing.assert_allclose(res.p_field[2:5, 2], [0.0, 0.4, 0.0], atol=1e-9)
+
+
+def test_locate_with_the_rays_cast_once_equals_the_plain_paths(station):
+    """`locate` with :meth:`Localiser.box_rays` (every ray from one table lookup, one surface lookup for the depth
+    centres, the ground centres and the wall check) gives what the plain paths give: ``from_depth`` for boxes with a
+    depth inside the field, ``from_ground`` otherwise (its sigma raised where ``hidden_foot`` says), and
+    ``Located.ground`` is ``from_ground`` of every box — on the built-in 2024 field's raised areas, with depths that
+    put some robots outside the field."""
+    from radarcal.field import load_field
+    from radarcal.runtime.localise import HIDDEN_FOOT_SIGMA_M
+
+    cam, T_field_cam = station["camera"], station["T_field_cam"]
+    loc = Localiser(cam, T_field_cam, load_field("rmuc2024"), robot_radius_m=0.25)
+    rng = np.random.default_rng(11)
+    uv = rng.uniform([0, 100], [1280, 1024], (300, 2))
+    half = rng.uniform([5, 10], [40, 80], (300, 2))
+    boxes = np.column_stack([uv - half, uv + half * [1, 0]])
+    depth = np.where(rng.random(300) < 0.6, rng.uniform(2, 40, 300), np.nan)
+    plain = loc.locate(boxes, depth)
+    cast = loc.locate(boxes, depth, foot=loc.box_rays(boxes))
+    for a, b in [(plain.p_field, cast.p_field), (plain.sigma, cast.sigma), (plain.ground, cast.ground)]:
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    assert plain.source.tolist() == cast.source.tolist()
+    uvb = np.column_stack([(boxes[:, 0] + boxes[:, 2]) / 2, boxes[:, 3]])
+    np.testing.assert_allclose(cast.ground, loc.from_ground(uvb), rtol=0, atol=1e-12)
+    d = cast.source == "depth"
+    uvc = np.column_stack([(boxes[:, 0] + boxes[:, 2]) / 2, (boxes[:, 1] + boxes[:, 3]) / 2])
+    np.testing.assert_allclose(cast.p_field[d], loc.from_depth(uvc[d], depth[d]), rtol=0, atol=1e-12)
+    g = cast.source == "ground"
+    np.testing.assert_allclose(cast.p_field[g], loc.from_ground(uvb[g]), rtol=0, atol=1e-12)
+    weak = loc.hidden_foot(uvb[g])
+    assert weak.any() and (~weak).any() and np.all(cast.sigma[g][weak] >= HIDDEN_FOOT_SIGMA_M)
+    outside = np.isfinite(depth) & (cast.source != "depth")  # a depth beyond the boundary: the ground ray instead
+    assert outside.any()
