@@ -220,14 +220,19 @@ class StaticFilter:
         if len(sel) > 4000:
             sel = sel[:: len(sel) // 4000]  # the same points as subsampling p[mask], without gathering all of them
         g = p[sel].astype(np.float64)
-        A = np.column_stack([g[:, 0], g[:, 1], np.ones(len(g))])
+        # least squares by the 3x3 normal equations about the points' mean (well conditioned: 20 us, np.linalg.lstsq's
+        # SVD took 0.4 ms of each cloud's 4000 points)
+        m = g.mean(axis=0)
+        A = np.column_stack([g[:, 0] - m[0], g[:, 1] - m[1], np.ones(len(g))])
         w = np.ones(len(g), bool)
         coef = np.zeros(3)
         for _ in range(3):
-            coef = np.linalg.lstsq(A[w], g[w, 2], rcond=None)[0]
-            res = g[:, 2] - A @ coef
+            Aw = A[w]
+            c = np.linalg.solve(Aw.T @ Aw, Aw.T @ g[w, 2])
+            res = g[:, 2] - A @ c
             rms = float(np.sqrt(np.mean(res[w] ** 2)))
             w = np.abs(res) < max(2.5 * rms, 0.03)
+            coef = np.array([c[0], c[1], c[2] - c[0] * m[0] - c[1] * m[1]])
         first = self.plane is None
         self.plane = coef if first else 0.8 * self.plane + 0.2 * coef
         self.plane_rms = rms if first else 0.8 * self.plane_rms + 0.2 * rms
