@@ -220,19 +220,21 @@ class StaticFilter:
         if len(sel) > 4000:
             sel = sel[:: len(sel) // 4000]  # the same points as subsampling p[mask], without gathering all of them
         g = p[sel].astype(np.float64)
-        # least squares by the 3x3 normal equations about the points' mean (well conditioned: 20 us, np.linalg.lstsq's
-        # SVD took 0.4 ms of each cloud's 4000 points)
-        m = g.mean(axis=0)
-        A = np.column_stack([g[:, 0] - m[0], g[:, 1] - m[1], np.ones(len(g))])
-        w = np.ones(len(g), bool)
+        # least squares by the 3x3 normal equations about the points' mean, summed over the kept points (well
+        # conditioned; np.linalg.lstsq's SVD of the gathered rows took 0.4 ms of each cloud's 4000 points)
+        mx, my = float(g[:, 0].mean()), float(g[:, 1].mean())
+        x, y, z = g[:, 0] - mx, g[:, 1] - my, np.ascontiguousarray(g[:, 2])
+        w = np.ones(len(g))
         coef = np.zeros(3)
         for _ in range(3):
-            Aw = A[w]
-            c = np.linalg.solve(Aw.T @ Aw, Aw.T @ g[w, 2])
-            res = g[:, 2] - A @ c
-            rms = float(np.sqrt(np.mean(res[w] ** 2)))
-            w = np.abs(res) < max(2.5 * rms, 0.03)
-            coef = np.array([c[0], c[1], c[2] - c[0] * m[0] - c[1] * m[1]])
+            wx, wy = w * x, w * y
+            sx, sy, sw = wx.sum(), wy.sum(), w.sum()
+            M = np.array([[wx @ x, wx @ y, sx], [wx @ y, wy @ y, sy], [sx, sy, sw]])
+            c = np.linalg.solve(M, np.array([wx @ z, wy @ z, w @ z]))
+            res = z - (c[0] * x + c[1] * y + c[2])
+            rms = float(np.sqrt(np.mean(res[w > 0] ** 2)))
+            w = (np.abs(res) < max(2.5 * rms, 0.03)).astype(np.float64)
+            coef = np.array([c[0], c[1], c[2] - c[0] * mx - c[1] * my])
         first = self.plane is None
         self.plane = coef if first else 0.8 * self.plane + 0.2 * coef
         self.plane_rms = rms if first else 0.8 * self.plane_rms + 0.2 * rms
