@@ -320,7 +320,7 @@ class Tracker3D:
         if not len(centre) or not live:
             return []
         d = np.linalg.norm(self.predicted_xy(float(np.mean(t)), live)[:, None, :] - centre[None, :, :2], axis=2)  # (T,K)
-        gate = np.minimum(np.stack([self._gate(tr, sigma, t) for tr in live]), max_gate_m)
+        gate = np.minimum(self._gates(live, sigma, t), max_gate_m)
         air = np.array([tr.aerial for tr in live])
         bad = (d > gate) | (air[:, None] != aerial[None, :])
         cost = np.where(bad, 1e6, d if penalty is None else d + penalty[:, None])
@@ -369,12 +369,20 @@ class Tracker3D:
         return tr
 
     def _gate(self, tr: Track3D, sigma: np.ndarray, t: np.ndarray) -> np.ndarray:
-        dt = np.maximum(t - tr.t, 0.0)
-        pos_var = 0.5 * (tr.P[0, 0] + tr.P[1, 1]) + dt**2 * 0.5 * (tr.P[2, 2] + tr.P[3, 3])
+        """(K,) gate (m) of ``tr`` for measurements of ``sigma`` (K,) at times ``t`` (K,)."""
+        return self._gates([tr], sigma, t)[0]
+
+    def _gates(self, tracks: list[Track3D], sigma: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """(T,K) gates (m) of ``tracks`` for measurements of ``sigma`` (K,) at times ``t`` (K,): ``gate_m`` + 3 sigma
+        of the innovation, at most what a robot can move since its last measurement."""
+        P = np.array([tr.P for tr in tracks]).reshape(-1, 4, 4)
+        dt = np.maximum(t[None] - np.array([tr.t for tr in tracks])[:, None], 0.0)
+        pos_var = (0.5 * (P[:, 0, 0] + P[:, 1, 1]))[:, None] + dt**2 * 0.5 * (P[:, 2, 2] + P[:, 3, 3])[:, None]
         # a robot moves at most vmax since it was last measured: the covariance of a coasting track grows without
         # that bound (1.5 s lost: a 10 m gate, and a lost track took a cluster 8.7 m away and its label back)
-        reach = self.gate_m + self.vmax * np.maximum(t - tr.t_seen, 0.0) + 3.0 * np.sqrt(sigma**2 + 0.1**2)
-        return np.minimum(self.gate_m + 3.0 * np.sqrt(pos_var + sigma**2), reach)
+        since = np.maximum(t[None] - np.array([tr.t_seen for tr in tracks])[:, None], 0.0)
+        reach = self.gate_m + self.vmax * since + 3.0 * np.sqrt(sigma**2 + 0.1**2)[None]
+        return np.minimum(self.gate_m + 3.0 * np.sqrt(pos_var + sigma[None] ** 2), reach)
 
     # --- LiDAR clusters ---
     def update_clusters(self, centre: np.ndarray, sigma: np.ndarray, t: np.ndarray, aerial: np.ndarray, extent: np.ndarray,
