@@ -163,6 +163,19 @@ def _merge_close(p: np.ndarray, comp: np.ndarray, q: ClusterParams) -> np.ndarra
     return connected_labels(nc, a, b)[comp]
 
 
+def _groups(comp: np.ndarray, nc: int) -> tuple[np.ndarray, np.ndarray]:
+    """The points' order grouped by component (``comp`` (M,) in 0..nc-1, every component non-empty) and where each
+    group starts in it."""
+    order = np.argsort(comp, kind="stable")
+    return order, np.searchsorted(comp[order], np.arange(nc))
+
+
+def _group_min_max(v: np.ndarray, order: np.ndarray, starts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-component min and max of ``v`` (M,) or (M,D) (:func:`_groups`; reduceat: ufunc.at was the slow part)."""
+    s = v[order]
+    return np.minimum.reduceat(s, starts, axis=0), np.maximum.reduceat(s, starts, axis=0)
+
+
 def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_xy: np.ndarray, params: ClusterParams | None = None) -> Clusters:
     """Cluster dynamic points ``p`` (M,3) field frame with times ``t`` (M,) and the surface height under each
     ``surface_z`` (M,); ``sensor_xy`` (2,) the LiDAR's field position (ranges, viewing directions)."""
@@ -190,10 +203,7 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     _, comp = np.unique(comp, return_inverse=True)
     comp = comp.reshape(-1)
     nc = comp.max() + 1
-    lo = np.full((nc, 2), np.inf)
-    hi = np.full((nc, 2), -np.inf)
-    np.minimum.at(lo, comp, p[:, :2])
-    np.maximum.at(hi, comp, p[:, :2])
+    lo, hi = _group_min_max(p[:, :2], *_groups(comp, nc))
     width = np.max(hi - lo, axis=1)
     wide = np.flatnonzero(width > q.split_m)
     next_id = nc
@@ -210,12 +220,9 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     nc = comp.max() + 1
     n = np.bincount(comp, minlength=nc)
     cen = np.stack([np.bincount(comp, p[:, i], nc) for i in range(3)], 1) / n[:, None]
-    lo = np.full((nc, 3), np.inf)
-    hi = np.full((nc, 3), -np.inf)
-    np.minimum.at(lo, comp, p)
-    np.maximum.at(hi, comp, p)
-    smin = np.full(nc, np.inf)
-    np.minimum.at(smin, comp, surface_z)
+    groups = _groups(comp, nc)
+    lo, hi = _group_min_max(p, *groups)
+    smin = _group_min_max(np.asarray(surface_z, float), *groups)[0]
     tm = np.bincount(comp, t, nc) / n
     rng = np.hypot(cen[:, 0] - sensor_xy[0], cen[:, 1] - sensor_xy[1])
     foot = np.max(hi[:, :2] - lo[:, :2], axis=1)
@@ -237,10 +244,7 @@ def cluster_points(p: np.ndarray, t: np.ndarray, surface_z: np.ndarray, sensor_x
     v_all = cen[:, :2] - sensor_xy
     v_all /= np.maximum(np.linalg.norm(v_all, axis=1, keepdims=True), 1e-9)
     along = np.einsum("ij,ij->i", p[:, :2], v_all[comp])
-    amin = np.full(nc, np.inf)
-    amax = np.full(nc, -np.inf)
-    np.minimum.at(amin, comp, along)
-    np.maximum.at(amax, comp, along)
+    amin, amax = _group_min_max(along, *groups)
     # every component's centre (the kept ones and the sparse ones a track may still take: Clusters.sparse)
     target = np.maximum(0.5 * (amin + amax), amin + np.where(aerial_z, q.push_aerial_m, q.push_face_m))
     cen_along = np.einsum("ij,ij->i", cen[:, :2], v_all)
