@@ -99,7 +99,7 @@ class Located:
     source: np.ndarray  # (K,) "depth" | "ground" | "none"
     sigma: np.ndarray  # (K,) 1-sigma horizontal position uncertainty (m), NaN if unknown
     range_m: np.ndarray  # (K,) horizontal distance camera -> robot
-    ground: np.ndarray  # (K,3) every box's ground-ray centre (:meth:`Localiser.from_ground`), NaN rows where its ray misses
+    ground: np.ndarray  # (K,3) ground-ray centres (:meth:`Localiser.from_ground`): every box's when ``locate`` had ``foot``, else those of the boxes that took the ground ray; NaN rows elsewhere and where a ray misses
 
 
 class Localiser:
@@ -211,8 +211,8 @@ class Localiser:
 
     def locate(self, boxes: np.ndarray, depth_z: np.ndarray, depth_sigma: np.ndarray | None = None, foot: tuple[np.ndarray, ...] | None = None) -> Located:
         """Boxes (K,4) xyxy + depths (K,) (NaN = no LiDAR depth) -> :class:`Located`. ``foot``: :meth:`box_rays`
-        of the boxes when already cast. One surface lookup serves the depth centres, the ground-ray centres (of
-        every box: :attr:`Located.ground`) and the wall check of :meth:`hidden_foot`."""
+        of the boxes when already cast. One surface lookup serves the depth centres, the ground-ray centres
+        (:attr:`Located.ground`) and the wall check of :meth:`hidden_foot`."""
         boxes = np.asarray(boxes, float).reshape(-1, 4)
         depth_z = np.asarray(depth_z, float).reshape(-1)
         k = len(boxes)
@@ -224,13 +224,17 @@ class Localiser:
         has = np.isfinite(depth_z) & (depth_z > 0)
         cx = (boxes[:, 0] + boxes[:, 2]) / 2
         uvb = np.column_stack([cx, boxes[:, 3]])
-        hit, above, rays_c = (self._surface_hits(uvb), None, None) if foot is None else foot
+        hit, above, rays_c = (None, None, None) if foot is None else foot
         xy_d = self._depth_xy(np.column_stack([cx[has], (boxes[has, 1] + boxes[has, 3]) / 2]), depth_z[has], None if rays_c is None else rays_c[has])
         # a robot's centre is inside the field: a depth that puts it beyond the boundary came from the perimeter
         # wall (or the crowd) behind a robot the LiDAR missed, so that box takes the ground ray instead
         out = np.zeros(k, bool)
         out[has] = self.outside_field(xy_d)
         ground_ray = ~has | out
+        if hit is None:  # without ``foot`` only the boxes that take the ground ray cast theirs
+            hit = np.full((k, 3), np.nan)
+            if ground_ray.any():
+                hit[ground_ray] = self._surface_hits(uvb[ground_ray])
         hidden = self.field is not None and ground_ray.any()
         xy_g = self._push_back(hit, self.radius)
         beyond = self._beyond(hit[ground_ray]) if hidden else np.zeros((0, 2))
