@@ -24,7 +24,7 @@ import numpy as np
 from radarcal.geometry import invert_T
 from radarcal.runtime.background import FieldOccupancy, StaticFilter, VoxelBackground, field_occupancy, range_sigma
 from radarcal.runtime.clusters import ClusterParams, cluster_points
-from radarcal.runtime.identity import add_votes, assign_labels, match_boxes, project_tracks, visible_parts
+from radarcal.runtime.identity import add_votes, assign_labels, decay_boxed_elsewhere, match_boxes, project_tracks, visible_parts
 from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Track3D, Tracker3D  # noqa: F401
 
 __all__ = ["LidarFirstConfig", "LidarFirst", "point_times", "fuse_fixes", "box_fix_order", "misread_holder", "on_other_robot", "LEGIBLE_PX"]
@@ -41,6 +41,7 @@ class LidarFirstConfig:
     learn_background: bool = True
     bg_voxel_m: float = 0.2
     bg_hits: float = 4.0  # decayed cloud count that makes a voxel background
+    elsewhere_decay: float = 0.8  # identity.decay_boxed_elsewhere per tick (1: off); chosen on synth match seed 1
     bg_tau_s: float = 20.0
     crop_inset_m: float = 0.05
     sigma_rot_deg: float = 0.25  # calibration sigma the tolerances follow (bundle sigma when it has one)
@@ -303,6 +304,9 @@ class LidarFirst:
             add_votes(tr.votes, vs[0][0], float(w[0]))
             for (lab, _, _), wi in zip(vs[1:], w[1:]):
                 tr.votes[lab] = tr.votes.get(lab, 0.0) + float(wi)
+        if votes and self.cfg.elsewhere_decay < 1.0:
+            boxed = {tid: {lab for lab, _, _ in vs} for tid, (_, vs) in votes.items()}
+            decay_boxed_elsewhere([tr.votes for tr in tk.tracks], [boxed.get(tr.id, set()) for tr in tk.tracks], self.cfg.elsewhere_decay)
         tk.step(t)
         names = assign_labels([tr.votes for tr in tk.tracks], live=[tr.state != LOST for tr in tk.tracks])
         for tr, lab in zip(tk.tracks, names):

@@ -9,7 +9,7 @@ from radarcal.field import builtin_field
 from radarcal.geometry import invert_T, make_T
 from radarcal.runtime.background import StaticFilter, VoxelBackground, field_occupancy, transform_f32
 from radarcal.runtime.clusters import REJECT_REASONS, cluster_points
-from radarcal.runtime.identity import assign_labels, match_boxes, visible_parts
+from radarcal.runtime.identity import add_votes, assign_labels, decay_boxed_elsewhere, match_boxes, visible_parts
 from radarcal.runtime.lidar_first import LidarFirstConfig, point_times
 from radarcal.runtime.tracks import CONFIRMED, LOST, TENTATIVE, Tracker3D
 
@@ -162,6 +162,27 @@ def test_identity_matches_the_visible_part_and_labels_are_unique():
     assert sorted((k, j) for k, j, _ in pairs) == [(0, 1), (1, 0)]
     labels = assign_labels([{"blue_3": 5.0, "blue_4": 0.6}, {"blue_3": 2.0, "blue_4": 1.8}, {"red_1": 0.3}, {"blue_3": 1.0, "blue_5": 3.0}])
     assert labels == ["blue_3", None, None, "blue_5"]  # one track per label; ambiguous or weak votes give no label
+
+
+def test_a_label_the_camera_boxes_on_another_track_leaves_the_stale_one():
+    """`synth match` seed 7: blue_3's track drifted off with a neighbour's cluster, its votes (10.1, never boxed again)
+    kept the label while the robot's new track was boxed blue_3 every frame (votes 5 -> 8), so blue_3 was written
+    1-2 m off for a second. A label boxed on one track decays on the others; a robot that no box names keeps its."""
+    def ticks(decay, n=12):
+        stale, new, hidden = {"blue_3": 10.07, "blue_2": 0.89}, {"blue_3": 5.0, "blue_2": 4.9}, {"red_4": 6.0}
+        named = []
+        for _ in range(n):
+            add_votes(new, "blue_3", 0.9)  # the camera boxes the robot's new track
+            decay_boxed_elsewhere([stale, new, hidden], [set(), {"blue_3"}, set()], decay)
+            named.append(assign_labels([stale, new, hidden]))
+        return named, hidden
+
+    named, hidden = ticks(0.8)
+    first = next(k for k, lab in enumerate(named) if lab[1] == "blue_3")
+    assert first <= 3 and all(lab[1] == "blue_3" and lab[0] != "blue_3" for lab in named[first:])
+    assert all(lab[2] == "red_4" for lab in named) and hidden == {"red_4": 6.0}  # not boxed elsewhere: untouched
+    named_off, _ = ticks(1.0)  # without it (main until 2026-12-03) the stale track keeps the label throughout
+    assert all(lab[0] == "blue_3" for lab in named_off)
 
 
 def test_point_times_model_a_late_sweep():

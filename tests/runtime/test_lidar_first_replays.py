@@ -56,8 +56,9 @@ def test_realistic_replay_auto_box_and_lidar_only(tmp_path, capsys):
     lidar, _ = _run(rep, capsys, "--no-camera")
     print(f"auto {auto}\nbox {box}\nlidar only {lidar}")
     # seed 7, never tuned on, is the hardest measured (docs/runtime.md: auto 78.9 -> 82.8 -> 80.6 % since the pile-up
-    # rule of the sparse components, box 84.8 % right)
-    assert auto["right_within_0.6m_pct"] > 78 and auto["median_m"] < 0.2 and auto["wrong_label_pct"] < 6
+    # rule of the sparse components, 81.5 % before a label boxed on another track decayed on the stale one, 84.6 %
+    # after; box 85.7 % right)
+    assert auto["right_within_0.6m_pct"] > 83.5 and auto["median_m"] < 0.2 and auto["wrong_label_pct"] < 6
     assert auto["false_per_frame"] < 0.35 and auto["longest_ghost_s"] < 1.0
     assert box["right_within_0.6m_pct"] > 75
     assert lidar["longest_ghost_s"] < 1.0 and lidar["false_per_frame"] < 0.4  # people at the boundary never become robots
