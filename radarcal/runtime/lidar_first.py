@@ -305,7 +305,9 @@ class LidarFirst:
             for (lab, _, _), wi in zip(vs[1:], w[1:]):
                 tr.votes[lab] = tr.votes.get(lab, 0.0) + float(wi)
         if votes and self.cfg.elsewhere_decay < 1.0:
-            boxed = {tid: {lab for lab, _, _ in vs} for tid, (_, vs) in votes.items()}
+            # only a box on a track the LiDAR sees now counts against the others: a box-only fix (a false positive, a
+            # 3<->4 swap) must not wear down the label of a robot the detector missed this frame
+            boxed = {tid: {lab for lab, _, _ in vs} for tid, (tr, vs) in votes.items() if tr.n_lidar and t - tr.t_lidar < LIDAR_NOW_S}
             decay_boxed_elsewhere([tr.votes for tr in tk.tracks], [boxed.get(tr.id, set()) for tr in tk.tracks], self.cfg.elsewhere_decay)
         tk.step(t)
         names = assign_labels([tr.votes for tr in tk.tracks], live=[tr.state != LOST for tr in tk.tracks])
