@@ -10,8 +10,9 @@
   moving, the background learnt from the first 5) pushed through the static filter, background learning, voxel
   clustering and the tracker (median over the 16 after warm-up, wall and CPU); and the per-camera-frame cost at
   30 FPS (one third of a 10 k cloud's processing + identity matching + box fallback + output) over a replay, next to
-  the box path's per-frame cost on the same replay in the same process. (Until 2026-12 this stacked one cloud 10
-  times, so the background learnt the robots too and nothing was clustered.)
+  the box path's per-frame cost on the same replay in the same process: ROUNDS alternating rounds of each, the best
+  and the median round, and auto / box round by round (the VM's speed drifts 2x over minutes). (Until 2026-12 this
+  stacked one cloud 10 times, so the background learnt the robots too and nothing was clustered.)
 * accuracy: `radarcal run --localise auto` and `--localise box` on three `radarcal synth match` replays (seeds 2, 3,
   5; 450 frames; visible-part boxes with jitter, misses, false positives and 3<->4 swaps; late clouds fired point by
   point; T_cam_lidar off 0.3 deg / 2 cm; field pose from a 1.5 px four-point PnP), the occlusion replay (seed 4),
