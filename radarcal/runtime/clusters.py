@@ -148,10 +148,10 @@ def _merge_close(p: np.ndarray, comp: np.ndarray, q: ClusterParams) -> np.ndarra
     nc = comp.max() + 1
     if nc < 2:
         return comp
-    lo = np.full((nc, 3), np.inf)
+    lo = np.full((nc, 3), np.inf)  # component labels here are roots, not 0..nc-1: the absent ones stay empty
     hi = np.full((nc, 3), -np.inf)
-    np.minimum.at(lo, comp, p)
-    np.maximum.at(hi, comp, p)
+    present, compact = np.unique(comp, return_inverse=True)
+    lo[present], hi[present] = _group_min_max(p, *_groups(compact.reshape(-1), len(present)))
     gap = np.maximum(0.0, np.maximum(lo[:, None, :2] - hi[None, :, :2], lo[None, :, :2] - hi[:, None, :2])).max(-1)
     union = (np.maximum(hi[:, None, :2], hi[None, :, :2]) - np.minimum(lo[:, None, :2], lo[None, :, :2])).max(-1)
     zgap = np.maximum(0.0, np.maximum(lo[:, None, 2] - hi[None, :, 2], lo[None, :, 2] - hi[:, None, 2]))
